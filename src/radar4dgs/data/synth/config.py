@@ -1,0 +1,103 @@
+"""Options of the procedural scene generator: one typed dataclass tree with named presets.
+
+Every noise level is a field, so a test can set it to 0 and get exact data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+
+@dataclass
+class RadarReflectivity:
+    """Detection probability at normal incidence and close range, per material (0..1)."""
+
+    vehicle: float = 0.9  # car bodies, cabins and wheels: strong metal returns
+    building: float = 0.35  # facades and roofs
+    pole: float = 0.8  # lamp posts: small but metallic
+    trunk: float = 0.4  # tree trunks
+    foliage: float = 0.12  # tree crowns: weak, diffuse
+    sidewalk: float = 0.25  # sidewalk slabs and curb faces
+    ground: float = 0.05  # asphalt and grass: seen at grazing angles, mostly invisible
+
+
+@dataclass
+class RadarSimConfig:
+    """A 4D imaging radar: ray casting on an azimuth/elevation grid, then detection and noise."""
+
+    mount_xyz: tuple[float, float, float] = (3.6, 0.0, 0.5)  # position in the ego frame (m): front bumper
+    misalignment_deg: tuple[float, float] = (0.5, 1.0)  # |yaw| and |pitch| mount error drawn in this range (deg), random sign; recorded exactly in radar_to_ego
+    azimuth_fov_deg: float = 120.0  # full horizontal field of view (deg)
+    elevation_fov_deg: float = 20.0  # full vertical field of view (deg)
+    azimuth_step_deg: float = 0.5  # ray grid spacing in azimuth (deg); each ray is jittered inside its cell
+    elevation_step_deg: float = 1.0  # ray grid spacing in elevation (deg)
+    max_range: float = 150.0  # no detections beyond this range (m)
+    range_half: float = 70.0  # range at which the detection probability has fallen to one half (m)
+    incidence_power: float = 0.5  # detection probability scales with |cos(incidence)| ** this
+    reflectivity: RadarReflectivity = field(default_factory=RadarReflectivity)  # per-material detection
+    max_points: int = 800  # true detections above this are subsampled at random
+    range_std: float = 0.05  # Gaussian range noise (m)
+    azimuth_std_deg: float = 0.3  # Gaussian azimuth noise (deg)
+    elevation_std_deg: float = 1.0  # Gaussian elevation noise (deg)
+    v_r_std: float = 0.08  # Gaussian Doppler noise (m/s)
+    rcs_std_db: float = 2.0  # Gaussian noise on the rcs column (dB)
+    clutter_fraction: float = 0.05  # expected clutter points per true detection (Poisson), label -1
+    clutter_v_r_max: float = 15.0  # clutter Doppler drawn uniformly in +- this (m/s)
+    ghost_count: int = 4  # at most this many multipath ghosts per frame (car points mirrored below the road), label -1
+
+
+@dataclass
+class LidarSimConfig:
+    """A spinning lidar for `lidar/`: points in the ego frame with an intensity column."""
+
+    mount_xyz: tuple[float, float, float] = (1.2, 0.0, 1.9)  # position in the ego frame (m): roof
+    beams: int = 32  # number of laser rows
+    elevation_range_deg: tuple[float, float] = (-25.0, 10.0)  # lowest and highest beam (deg)
+    azimuth_step_deg: float = 0.4  # horizontal resolution over 360 deg (deg)
+    max_range: float = 100.0  # returns beyond this are dropped (m)
+    range_std: float = 0.02  # Gaussian range noise (m)
+    intensity_std: float = 0.02  # Gaussian noise on the intensity column (0..1)
+
+
+@dataclass
+class MonoPriorConfig:
+    """A Depth-Anything-like relative inverse depth `a / z * (1 + distortion + noise) + b`."""
+
+    scale_range: tuple[float, float] = (10.0, 40.0)  # a, drawn once per scene
+    shift_range: tuple[float, float] = (0.05, 0.5)  # b, drawn once per scene (the value of the sky)
+    distortion: float = 0.05  # amplitude of the smooth multiplicative distortion (0.05 = +-5 %)
+    noise_std: float = 0.01  # per-pixel multiplicative Gaussian noise
+    blur_sigma: float = 0.003  # Gaussian blur of the prior, as a fraction of the image width (soft edges as a network's)
+    sky_jitter_px: int = 1  # the sky-mask prior grows or shrinks by up to this many pixels per frame
+
+
+@dataclass
+class SynthConfig:
+    """The procedural driving-scene generator (``radar4dgs synth``)."""
+
+    seed: int = 0  # layout, speeds, colours, textures and all noise draws
+    width: int = 320  # image width (px)
+    height: int = 180  # image height (px)
+    num_frames: int = 50  # camera frames (radar and lidar share the timestamps)
+    fps: float = 10.0  # frame rate (Hz)
+    hfov_deg: float = 70.0  # camera horizontal field of view (deg)
+    camera_xyz: tuple[float, float, float] = (1.5, 0.0, 1.5)  # camera position in the ego frame (m)
+    camera_pitch_deg: float = 3.0  # camera looks down by this much (deg)
+    ego_speed: tuple[float, float] = (5.0, 20.0)  # ego speed drawn in this range (m/s)
+    weave_amplitude: tuple[float, float] = (0.0, 0.6)  # lateral S-curve amplitude drawn in this range (m): gentle curves, non-zero yaw rate
+    weave_wavelength: tuple[float, float] = (60.0, 150.0)  # S-curve wavelength drawn in this range (m)
+    parked_cars: tuple[int, int] = (2, 4)  # number of parked cars, inclusive range
+    moving_cars: tuple[int, int] = (2, 4)  # number of moving cars, inclusive range
+    crossing_probability: float = 0.7  # chance that one moving car crosses at the intersection ahead
+    image_noise_std: float = 1.0  # Gaussian pixel noise (8-bit units)
+    radar: RadarSimConfig = field(default_factory=RadarSimConfig)  # 4D radar simulation
+    lidar: LidarSimConfig = field(default_factory=LidarSimConfig)  # lidar simulation
+    prior: MonoPriorConfig = field(default_factory=MonoPriorConfig)  # priors/ (mono depth, sky mask)
+
+    PRESETS: ClassVar[dict[str, dict]] = {
+        "tiny": {"width": 160, "height": 90, "num_frames": 20,
+                 "lidar": {"beams": 16, "azimuth_step_deg": 1.0}},
+        "small": {"width": 320, "height": 180, "num_frames": 50},
+        "paper": {"width": 1920, "height": 1080, "num_frames": 50},
+    }

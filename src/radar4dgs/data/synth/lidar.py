@@ -1,0 +1,43 @@
+"""A spinning lidar for `lidar/`: (N, 4) x, y, z, intensity in the ego frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radar4dgs.data.synth import world as W
+from radar4dgs.data.synth.config import LidarSimConfig
+from radar4dgs.data.synth.radar import spherical_to_xyz
+from radar4dgs.data.synth.raycast import NO_HIT, azimuth_windows, cast, rigid
+from radar4dgs.data.synth.shade import albedo
+
+
+def simulate(world: W.World, config: LidarSimConfig, time: float, rng: np.random.Generator) -> np.ndarray:
+    """One sweep at ``time`` (no motion during the sweep); intensity is the surface albedo's
+    luminance (lane paint bright, asphalt dark), plus noise, clipped to 0..1."""
+    n_az = max(1, int(round(360.0 / config.azimuth_step_deg)))
+    azimuths = np.radians((np.arange(n_az) + 0.5) * (360.0 / n_az) - 180.0)
+    elevations = np.radians(np.linspace(*config.elevation_range_deg, config.beams))
+    dirs_lidar = spherical_to_xyz(np.ones((len(elevations), n_az)), azimuths[None, :], elevations[:, None])
+    mount = rigid(np.eye(3), config.mount_xyz)
+    ego_to_road = world.ego.pose(time)
+    lidar_to_road = ego_to_road @ mount
+    road_to_lidar = np.linalg.inv(lidar_to_road)
+    origin = lidar_to_road[:3, 3]
+    dirs = dirs_lidar @ lidar_to_road[:3, :3].T
+    prims = world.primitives_at(time)
+    margin = np.radians(360.0 / n_az)
+    rows = len(elevations)
+    hits = cast(origin, dirs, prims,
+                azimuth_windows(prims.box_corners(), road_to_lidar, azimuths, margin, rows, config.max_range),
+                azimuth_windows(prims.sphere_corners(), road_to_lidar, azimuths, margin, rows, config.max_range),
+                t_max=config.max_range)
+    hit = hits.prim != NO_HIT
+    t, d, n, prim = hits.t[hit], dirs[hit], hits.normal[hit], hits.prim[hit]
+    p = origin + d * t[:, None]
+    base = albedo(world, prims.material[prim], prims.obj[prim], prim, prims.color[prim], p, n,
+                  np.full(len(t), 0.05), time)
+    intensity = base @ np.array([0.299, 0.587, 0.114])
+    intensity = np.clip(intensity + rng.normal(0.0, config.intensity_std, len(t)), 0.0, 1.0)
+    t_noisy = t + rng.normal(0.0, config.range_std, len(t))
+    p_ego = (dirs_lidar[hit] * t_noisy[:, None]) + np.asarray(config.mount_xyz)
+    return np.column_stack([p_ego, intensity]).astype(np.float32)
