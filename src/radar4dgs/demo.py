@@ -34,7 +34,8 @@ class DemoCommand:
         scene_dir = self.out / "scene"
         print(f"[1] synthesise a '{self.preset}' scene (seed {self.seed}) -> {scene_dir}")
         if self.fresh or not (scene_dir / "scene.json").is_file():
-            synthesize(replace(preset(SynthConfig, self.preset), seed=self.seed), scene_dir, overwrite=True)
+            synthesize(replace(preset(SynthConfig, self.preset), seed=self.seed), scene_dir, overwrite=True,
+                       preset=self.preset)
         else:
             print("    reusing the existing scene (--fresh to regenerate)")
         scene = read_scene(scene_dir)
