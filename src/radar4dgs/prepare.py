@@ -1,0 +1,143 @@
+"""The ``prepare`` command: the front-end stages that turn a scene folder into a prepared folder.
+
+Stages run in order, each writing ``<prepared>/<stage>/``. A stage is skipped when its folder holds
+a ``stage.json`` written for the same stage config and the same ``scene.json``; ``--force`` redoes
+it. Each stage folder is written in a temporary folder and renamed into place, so an interrupted
+run leaves either the old outputs or none. The resolved config is saved as
+``<prepared>/config.json``. Later issues add stages (depth, segmentation, ...) to ``STAGES``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Mapping, Optional
+
+import tyro
+from tqdm import tqdm
+
+from radar4dgs.config import PresetName, save_config, to_dict
+from radar4dgs.data.atomic import atomic_directory, atomic_write_json
+from radar4dgs.data.scene import Scene, SceneError, read_scene
+from radar4dgs.radar.config import RadarConfig
+from radar4dgs.radar.process import prepare_radar
+
+STAGE_MARKER = "stage.json"
+
+
+@dataclass
+class PrepareConfig:
+    """Configuration of every prepare stage (one field per stage)."""
+
+    # Stage "radar": ego-motion RANSAC, dynamic points, compensated Doppler.
+    radar: RadarConfig = field(default_factory=RadarConfig)
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        name: {"radar": dict(values)} for name, values in RadarConfig.PRESETS.items()}
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One prepare stage: its folder name, its part of the config, and its runner
+    ``run(scene, out_dir, stage_config, progress) -> summary dict``."""
+
+    name: str
+    config_of: Callable[[PrepareConfig], Any]
+    run: Callable[..., dict]
+
+
+def _run_radar(scene: Scene, out_dir: Path, config: RadarConfig, progress: Callable) -> dict:
+    summary = prepare_radar(scene, out_dir, config, progress)
+    return {"frames": summary["num_frames"], "ok": summary["num_ok"]}
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage("radar", lambda c: c.radar, _run_radar),
+)
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """sha256 of ``scene.json``: a stage's outputs are reused only for the same scene metadata."""
+    return hashlib.sha256((scene.root / "scene.json").read_bytes()).hexdigest()
+
+
+def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bool:
+    marker = stage_dir / STAGE_MARKER
+    if not marker.is_file():
+        return False
+    try:
+        saved = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return False
+    return saved.get("config") == to_dict(stage_config) and saved.get("scene") == fingerprint
+
+
+def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareConfig | None = None,
+                force: bool = False, only: tuple[str, ...] = (), progress: bool = True) -> dict[str, str]:
+    """Run the stages (all, or those named in ``only``) and return ``{stage: "ran" | "skipped"}``."""
+    config = config or PrepareConfig()
+    scene = read_scene(scene_path)
+    prepared = Path(prepared) if prepared is not None else Path(scene_path) / "prepared"
+    known = [s.name for s in STAGES]
+    unknown = [name for name in only if name not in known]
+    if unknown:
+        raise ValueError(f"unknown stage(s) {unknown}; stages are {known}")
+    prepared.mkdir(parents=True, exist_ok=True)
+    save_config(config, prepared / "config.json")
+    fingerprint = scene_fingerprint(scene)
+    status: dict[str, str] = {}
+    for stage in STAGES:
+        if only and stage.name not in only:
+            continue
+        stage_dir = prepared / stage.name
+        stage_config = stage.config_of(config)
+        if not force and stage_is_current(stage_dir, stage_config, fingerprint):
+            status[stage.name] = "skipped"
+            continue
+
+        def bar(items, _name=stage.name):
+            return tqdm(items, total=len(scene), desc=_name, unit="frame", disable=not progress)
+
+        with atomic_directory(stage_dir, overwrite=True) as tmp:
+            result = stage.run(scene, tmp, stage_config, bar)
+            atomic_write_json(tmp / STAGE_MARKER, {"stage": stage.name, "config": to_dict(stage_config),
+                                                   "scene": fingerprint, "result": result})
+        status[stage.name] = "ran"
+    return status
+
+
+@dataclass
+class PrepareCommand:
+    """Run the front end on a scene: radar ego-motion and dynamic points (more stages to come)."""
+
+    # The scene folder.
+    scene: tyro.conf.Positional[Path]
+    # The prepared folder; default <scene>/prepared.
+    out: Optional[Path] = None
+    # Preset the stage configs start from.
+    preset: PresetName = "small"
+    # Stage configs (filled from --preset, then overridden by the options below).
+    config: PrepareConfig = field(default_factory=PrepareConfig)
+    # Redo stages even when their outputs exist for the same config.
+    force: bool = False
+    # Run only these stages (default: all, in order).
+    only: tuple[str, ...] = ()
+    # Hide the progress bars.
+    quiet: bool = False
+
+    PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": PrepareConfig}
+
+    def run(self) -> int:
+        try:
+            status = run_prepare(self.scene, self.out, self.config, self.force, tuple(self.only),
+                                 progress=not self.quiet)
+        except (SceneError, ValueError, FileExistsError) as exc:
+            print(f"radar4dgs prepare: {exc}", file=sys.stderr)
+            return 1
+        prepared = self.out if self.out is not None else self.scene / "prepared"
+        for name, what in status.items():
+            print(f"{name}: {what} -> {prepared / name}")
+        return 0

@@ -1,0 +1,81 @@
+"""Options of the radar front end (ego-motion RANSAC, dynamic classification, scene processing)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal, Mapping, Any
+
+
+@dataclass
+class RadarConfig:
+    """Radar front-end options. Defaults suit an imaging radar with ~0.1 m/s Doppler noise."""
+
+    # Doppler measurement noise std sigma_vr (m/s): sets the RANSAC inlier band and the dynamic
+    # threshold. A 77 GHz imaging radar resolves about 0.1 m/s.
+    noise_std: float = 0.1
+    # Azimuth noise std sigma_az (rad). A direction error changes the predicted Doppler of a static
+    # point by (dd/daz . v_s) * daz, so the inlier band widens with speed (0.005 rad = 0.3 deg).
+    azimuth_std: float = 0.005
+    # Elevation noise std sigma_el (rad); imaging radars resolve elevation worse (0.017 = 1 deg).
+    elevation_std: float = 0.017
+    # Inlier band half-width in sigmas for RANSAC and for the final inlier set.
+    inlier_sigma: float = 3.0
+    # A point is dynamic when |compensated v_r| exceeds this many sigmas (of the combined noise,
+    # see classify_dynamic).
+    dynamic_sigma: float = 3.0
+    # RANSAC: probability of drawing at least one all-inlier sample (adaptive iteration count).
+    confidence: float = 0.999
+    # RANSAC: hard cap on the number of hypotheses.
+    max_iterations: int = 1000
+    # RANSAC: hypotheses evaluated together in one vectorised numpy batch.
+    batch_size: int = 32
+    # Least-squares refinement rounds (inliers -> LS -> inliers); stops early when the set is stable.
+    refine_iterations: int = 3
+    # The fit is `ok` only when at least this fraction of the valid points are inliers.
+    min_inlier_fraction: float = 0.25
+    # The fit needs at least this many valid points (and this many inliers).
+    min_points: int = 5
+    # Points closer than this (m) have no usable direction and are ignored.
+    min_range: float = 0.1
+    # Minimal samples whose (k x k) direction matrix has a smallest singular value below this are
+    # skipped: they amplify the Doppler noise by 1/sigma_min.
+    sample_min_singular: float = 0.02
+    # The final normalised design matrix (inlier directions / sqrt(n)) must have its smallest
+    # singular value above this, else the velocity is unobservable and ok = False.
+    min_conditioning: float = 0.01
+    # "3d" solves (vx, vy, vz); "2d" solves (vx, vy) with vz = 0 (radars with almost no elevation
+    # spread, like a conventional automotive radar); "auto" picks 2d when the scan's elevation
+    # spread leaves vz unobservable (smallest singular value of all directions below
+    # `min_conditioning` * 3).
+    model: Literal["auto", "3d", "2d"] = "auto"
+    # Variance prior (m/s) put on vz in 2d mode, so the covariance stays 3x3 and honest.
+    vertical_std_2d: float = 0.5
+    # Standstill check: when this fraction of the points have |v_r| below the inlier band, the
+    # radar is taken as standing still (velocity 0 is added as a hypothesis and wins ties).
+    standstill_fraction: float = 0.5
+    # RANSAC scores each inlier by 1 / (points in its azimuth-elevation bin of this size, degrees), so
+    # a compact dense object (a big truck) cannot outvote the static world spread over the field of
+    # view. 0 = plain inlier count.
+    angular_bin_deg: float = 5.0
+    # Random seed of the RANSAC sampler (np.random.default_rng); per frame the scene processor adds
+    # the frame index so frames are independent but reproducible.
+    seed: int = 0
+    # Scene processing: ground-vehicle prior, the ego's velocity along its own z axis is 0 +- this
+    # (m/s), added as one pseudo-observation to the least-squares refinement. A car moves along its
+    # own x-y plane even on slopes; only suspension pitch breaks it. The radar's vertical velocity
+    # is otherwise the worst-determined component (elevation noise, narrow elevation field).
+    # 0 disables it.
+    vertical_prior_std: float = 0.1
+    # Scene processing: offer the previous frame's velocity as an extra RANSAC hypothesis.
+    temporal_prior: bool = True
+    # Scene processing: temporal smoothing of the ego velocity across frames; "none" keeps the
+    # per-frame fit, "median" a running median, "mean" a covariance-weighted running mean.
+    smoothing: Literal["none", "median", "mean"] = "none"
+    # Scene processing: smoothing window in frames (odd).
+    smoothing_window: int = 5
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        "tiny": {"max_iterations": 200},
+        "small": {},
+        "paper": {"max_iterations": 2000},
+    }

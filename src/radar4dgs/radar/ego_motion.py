@@ -1,0 +1,358 @@
+"""Radar ego-motion from one scan's Doppler velocities (3-point RANSAC + least squares).
+
+A static point seen along the unit direction ``d`` from a radar moving with velocity ``v_s``
+(radar frame) has the raw Doppler ``v_r = -d . v_s`` (positive = receding). Stacking the static
+points gives the linear system ``-D v_s = v_r``; moving points and clutter are outliers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from radar4dgs.radar.config import RadarConfig
+
+
+@dataclass(frozen=True)
+class EgoMotion:
+    """The radar's own velocity estimated from one scan.
+
+    Attributes:
+        velocity: (3,) float64 radar velocity in the radar frame (m/s); NaN when no estimate exists.
+        inliers: (N,) bool, the points explained as static (False for invalid rows).
+        covariance: (3, 3) float64 covariance of ``velocity`` (NaN when no estimate exists).
+        ok: whether the estimate is trustworthy.
+        reason: why not (or "standstill" / "" when ok).
+        residual_std: std (m/s) of the inlier residuals ``v_r + d . v_s``.
+        iterations: RANSAC hypotheses evaluated.
+        dof: 3 (vx, vy, vz estimated) or 2 (vz fixed at 0, see ``RadarConfig.model``).
+        noise_std, azimuth_std, elevation_std: the noise model used (``classify_dynamic`` reuses it).
+    """
+
+    velocity: np.ndarray
+    inliers: np.ndarray
+    covariance: np.ndarray
+    ok: bool
+    reason: str = ""
+    residual_std: float = float("nan")
+    iterations: int = 0
+    dof: int = 3
+    standstill: bool = False
+    noise_std: float = 0.1
+    azimuth_std: float = 0.005
+    elevation_std: float = 0.017
+
+    @property
+    def speed(self) -> float:
+        return float(np.linalg.norm(self.velocity))
+
+
+def _resolve_config(config: RadarConfig | None, options: dict[str, Any]) -> RadarConfig:
+    config = config or RadarConfig()
+    if options:
+        names = {f.name for f in dataclasses.fields(RadarConfig)}
+        unknown = set(options) - names
+        if unknown:
+            raise TypeError(f"unknown radar option(s) {sorted(unknown)}; options are {sorted(names)}")
+        config = dataclasses.replace(config, **options)
+    return config
+
+
+def _as_points(xyz: Any, v_r: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Validate shapes early (clear errors instead of numpy broadcasting failures deep inside)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    v_r = np.asarray(v_r, dtype=np.float64)
+    if xyz.size == 0 and v_r.size == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"xyz must have shape (N, 3), got {xyz.shape}")
+    if v_r.shape != (xyz.shape[0],):
+        raise ValueError(f"v_r must have shape ({xyz.shape[0]},) to match xyz, got {v_r.shape}")
+    return xyz, v_r
+
+
+def unit_directions(xyz: np.ndarray, min_range: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) unit line-of-sight directions and (N,) bool validity (finite, range > min_range)."""
+    rng = np.linalg.norm(xyz, axis=1)
+    valid = np.isfinite(rng) & (rng > max(min_range, 1e-12))
+    d = np.zeros_like(xyz)
+    d[valid] = xyz[valid] / rng[valid, None]
+    return d, valid
+
+
+def angle_jacobians(d: np.ndarray, azimuth_std: float, elevation_std: float) -> np.ndarray:
+    """(2, N, 3): ``sigma_az * dd/daz`` and ``sigma_el * dd/del`` for (N, 3) unit directions.
+
+    With ``d = (cos e cos a, cos e sin a, sin e)``: ``dd/da = cos e (-sin a, cos a, 0)`` and
+    ``dd/de = (-sin e cos a, -sin e sin a, cos e)``. The Doppler error of a static point due to
+    direction noise is ``(J . v_s)``, row by row.
+    """
+    horizontal = np.hypot(d[:, 0], d[:, 1])                # cos e
+    safe = np.where(horizontal > 1e-12, horizontal, 1.0)
+    cos_a, sin_a = d[:, 0] / safe, d[:, 1] / safe
+    d_az = np.stack([-d[:, 1], d[:, 0], np.zeros(len(d))], axis=1)
+    d_el = np.stack([-d[:, 2] * cos_a, -d[:, 2] * sin_a, horizontal], axis=1)
+    return np.stack([azimuth_std * d_az, elevation_std * d_el])
+
+
+def band_sq(J: np.ndarray, v: np.ndarray, noise_std: float, sigma: float) -> np.ndarray:
+    """Squared noise band ``sigma^2 (s_vr^2 + (s_az dd/daz . v)^2 + (s_el dd/del . v)^2)``.
+
+    ``J`` (2, N, k) from :func:`angle_jacobians` (first k columns); ``v`` (k,) or (k, S) hypotheses;
+    returns (N,) or (N, S).
+    """
+    ja, je = J[0] @ v, J[1] @ v
+    return sigma * sigma * (noise_std * noise_std + ja * ja + je * je)
+
+
+def angular_weights(d: np.ndarray, bin_deg: float) -> np.ndarray:
+    """(N,) weight 1 / (points sharing the point's azimuth-elevation bin); ones when bin_deg <= 0."""
+    if bin_deg <= 0 or len(d) == 0:
+        return np.ones(len(d))
+    az = np.arctan2(d[:, 1], d[:, 0])
+    el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+    step = math.radians(bin_deg)
+    keys = np.floor(az / step).astype(np.int64) * 100003 + np.floor(el / step).astype(np.int64)
+    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    return 1.0 / counts[inverse]
+
+
+def _min_singular(a: np.ndarray) -> np.ndarray:
+    """Smallest singular value of each (..., k, k) matrix."""
+    return np.linalg.svd(a, compute_uv=False)[..., -1]
+
+
+def _solve_minimal(D: np.ndarray, v_r: np.ndarray, idx: np.ndarray, min_singular: float) -> np.ndarray:
+    """(S, k) hypotheses from (S, k) sample indices; rows of ill-conditioned samples are dropped.
+
+    Solves ``-D[idx] v = v_r[idx]``; samples with repeated indices are singular and dropped too.
+    """
+    A = -D[idx]                                    # (S, k, k)
+    b = v_r[idx]                                   # (S, k)
+    good = _min_singular(A) >= min_singular
+    if not good.any():
+        return np.zeros((0, D.shape[1]))
+    return np.linalg.solve(A[good], b[good][..., None])[..., 0]
+
+
+def _score(M: np.ndarray, v_r: np.ndarray, weights: np.ndarray, hyps: np.ndarray,
+           config: RadarConfig) -> np.ndarray:
+    """(S,) angularly weighted inlier score of (S, k) hypotheses on all points.
+
+    ``M`` (3N, k) stacks the directions and the two angle Jacobians (one matmul for all three);
+    the arithmetic is in place because this is the hot loop (N x S elements per batch).
+    """
+    n = len(v_r)
+    P = M @ hyps.T                                 # (3N, S)
+    resid = P[:n]
+    resid += v_r[:, None]
+    resid *= resid
+    band = P[n:2 * n]
+    band *= band
+    je = P[2 * n:]
+    je *= je
+    band += je
+    band += config.noise_std ** 2
+    band *= config.inlier_sigma ** 2
+    return weights @ (resid <= band)
+
+
+def _needed_iterations(inlier_fraction: float, k: int, confidence: float, cap: int) -> int:
+    """Standard RANSAC count log(1 - p) / log(1 - w^k), capped."""
+    good = inlier_fraction ** k
+    if good <= 0:
+        return cap
+    if good >= 1:
+        return 1
+    return int(min(cap, math.ceil(math.log(1 - confidence) / math.log(1 - good))))
+
+
+def _inliers_of(D: np.ndarray, J: np.ndarray, v_r: np.ndarray, v: np.ndarray, config: RadarConfig) -> np.ndarray:
+    resid = v_r + D @ v
+    return resid * resid <= band_sq(J, v, config.noise_std, config.inlier_sigma)
+
+
+def _normal_equations(A: np.ndarray, b: np.ndarray, w: np.ndarray,
+                      prior: tuple[np.ndarray, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """(k, k) information matrix and (k,) right-hand side of weighted LS, plus an optional
+    zero-velocity prior ``axis . v = 0 +- std``."""
+    AtW = A.T * w
+    H, g = AtW @ A, AtW @ b
+    if prior is not None:
+        axis, std = prior
+        H = H + np.outer(axis, axis) / std ** 2
+    return H, g
+
+
+def _least_squares(D: np.ndarray, J: np.ndarray, v_r: np.ndarray, v_guess: np.ndarray,
+                   config: RadarConfig, prior: tuple[np.ndarray, float] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted LS on the inlier set, iterated: returns (k,) velocity and (n,) inlier mask."""
+    v = v_guess
+    inl = _inliers_of(D, J, v_r, v, config)
+    for _ in range(max(1, config.refine_iterations)):
+        if inl.sum() < D.shape[1]:
+            break
+        A = -D[inl]
+        # Weights 1/sigma_i^2 of each point's noise (the direction term grows with speed).
+        w = 1.0 / band_sq(J[:, inl], v, config.noise_std, 1.0)
+        try:
+            v_new = np.linalg.solve(*_normal_equations(A, v_r[inl], w, prior))
+        except np.linalg.LinAlgError:
+            break
+        inl_new = _inliers_of(D, J, v_r, v_new, config)
+        v = v_new
+        if np.array_equal(inl_new, inl):
+            break
+        inl = inl_new
+    return v, inl
+
+
+def _pad3(v: np.ndarray) -> np.ndarray:
+    out = np.zeros(3)
+    out[: len(v)] = v
+    return out
+
+
+def _fail(n: int, reason: str, config: RadarConfig, valid: np.ndarray | None = None,
+          velocity: np.ndarray | None = None, inliers: np.ndarray | None = None, iterations: int = 0,
+          dof: int = 3) -> EgoMotion:
+    return EgoMotion(
+        velocity=np.full(3, np.nan) if velocity is None else velocity,
+        inliers=np.zeros(n, dtype=bool) if inliers is None else inliers,
+        covariance=np.full((3, 3), np.nan), ok=False, reason=reason, iterations=iterations, dof=dof,
+        noise_std=config.noise_std, azimuth_std=config.azimuth_std, elevation_std=config.elevation_std)
+
+
+def choose_dof(d: np.ndarray, config: RadarConfig) -> int:
+    """3 when the scan's directions make vz observable, else 2 (see ``RadarConfig.model``)."""
+    if config.model != "auto":
+        return 3 if config.model == "3d" else 2
+    if len(d) < 3:
+        return 3
+    sing = np.linalg.svd(d / math.sqrt(len(d)), compute_uv=False)
+    return 3 if sing[-1] >= 3 * config.min_conditioning else 2
+
+
+def estimate_ego_motion(xyz: Any, v_r: Any, config: RadarConfig | None = None,
+                        prior: np.ndarray | None = None, vertical_axis: np.ndarray | None = None,
+                        **options: Any) -> EgoMotion:
+    """The radar's velocity from one scan, robust to moving points and clutter.
+
+    Args:
+        xyz: (N, 3) point positions in the radar frame (m). Rows with NaN/inf or a range below
+            ``min_range`` are ignored (their ``inliers`` entry is False).
+        v_r: (N,) raw Doppler radial velocities (m/s), positive = receding.
+        config: options (``RadarConfig``); ``options`` override single fields, e.g. ``seed=3``.
+        prior: optional (3,) velocity offered as an extra hypothesis (the previous frame's).
+        vertical_axis: optional (3,) unit vector, the ego's z axis in radar axes; with
+            ``vertical_prior_std > 0`` the refinement adds ``vertical_axis . v = 0 +- std`` (a
+            ground vehicle does not move along its own z axis). Needs the mounting, so the scene
+            processor passes it; plain calls estimate v unconstrained.
+
+    Returns:
+        EgoMotion. ``ok`` is False, with a reason, for empty or too small scans, degenerate
+        geometry, or when fewer than ``min_inlier_fraction`` of the points agree on one velocity.
+
+    Method: 3-point minimal samples (2-point in 2d mode) solved in vectorised batches, each sample
+    checked for conditioning; hypotheses scored by angularly weighted inlier count with a
+    noise- and speed-aware band; the iteration count adapts to the best inlier fraction so far
+    (``log(1-p)/log(1-w^k)``); the zero velocity (standstill) and ``prior`` are always scored too;
+    the winner is refined by weighted least squares on its inliers, iterated; the final design
+    matrix is checked for conditioning and the covariance is ``s^2 (A^T W A)^-1`` with ``s^2`` the
+    reduced chi-square of the inliers.
+    """
+    config = _resolve_config(config, options)
+    xyz, v_r = _as_points(xyz, v_r)
+    n_all = len(xyz)
+    if n_all == 0:
+        return _fail(0, "empty scan", config)
+    d_all, valid = unit_directions(xyz, config.min_range)
+    valid &= np.isfinite(v_r)
+    n = int(valid.sum())
+    if n < max(config.min_points, 3):
+        return _fail(n_all, f"too few valid points ({n} < {max(config.min_points, 3)})", config)
+
+    D3, vr = d_all[valid], v_r[valid]
+    k = choose_dof(D3, config)
+    D = D3[:, :k]
+    rng = np.random.default_rng(config.seed)
+    J = angle_jacobians(D3, config.azimuth_std, config.elevation_std)[:, :, :k]
+    weights = angular_weights(D3, config.angular_bin_deg)
+    total_weight = weights.sum()
+
+    # Always-scored hypotheses: standstill (v = 0) and the prior.
+    fixed = [np.zeros(k)]
+    if prior is not None and np.all(np.isfinite(prior)):
+        fixed.append(np.asarray(prior, dtype=np.float64)[:k])
+    fixed_h = np.stack(fixed)
+    M = np.ascontiguousarray(np.concatenate([D, J[0], J[1]]))
+    scores = _score(M, vr, weights, fixed_h, config)
+    best_i = int(np.argmax(scores))
+    best_v, best_score = fixed_h[best_i], float(scores[best_i])
+    standstill_count = float(_inliers_of(D, J, vr, np.zeros(k), config).mean())
+    standstill = standstill_count >= config.standstill_fraction
+
+    iterations, needed, conditioned = 0, config.max_iterations, 0
+    if not standstill:
+        needed = _needed_iterations(best_score / total_weight, k, config.confidence, config.max_iterations)
+        while iterations < min(needed, config.max_iterations):
+            size = int(min(config.batch_size, config.max_iterations - iterations))
+            idx = rng.integers(0, n, size=(size, k))
+            iterations += size
+            hyps = _solve_minimal(D, vr, idx, config.sample_min_singular)
+            conditioned += len(hyps)
+            if len(hyps) == 0:
+                continue
+            scores = _score(M, vr, weights, hyps, config)
+            i = int(np.argmax(scores))
+            if scores[i] > best_score:
+                best_score, best_v = float(scores[i]), hyps[i]
+                needed = _needed_iterations(best_score / total_weight, k, config.confidence,
+                                            config.max_iterations)
+
+    if not standstill and conditioned == 0:
+        return _fail(n_all, f"degenerate geometry: none of {iterations} minimal samples is "
+                            f"well-conditioned (directions span too little)", config, iterations=iterations,
+                     dof=k)
+    vprior = None
+    if vertical_axis is not None and config.vertical_prior_std > 0 and k == 3:
+        vprior = (np.asarray(vertical_axis, dtype=np.float64), config.vertical_prior_std)
+    # At a standstill the zero hypothesis seeds the refinement (a slow crawl is still recovered).
+    v, inl = _least_squares(D, J, vr, np.zeros(k) if standstill else best_v, config, vprior)
+
+    inliers = np.zeros(n_all, dtype=bool)
+    inliers[np.flatnonzero(valid)[inl]] = True
+    n_in = int(inl.sum())
+    velocity = _pad3(v)
+    fail = dict(velocity=velocity, inliers=inliers, iterations=iterations, dof=k)
+    if n_in < max(config.min_points, k):
+        return _fail(n_all, f"too few inliers ({n_in} of {n})", config, **fail)
+    A = -D[inl]
+    sing = np.linalg.svd(A / math.sqrt(n_in), compute_uv=False)
+    if sing[-1] < config.min_conditioning:
+        return _fail(n_all, f"degenerate geometry: inlier directions span too little "
+                            f"(smallest singular value {sing[-1]:.2g} < {config.min_conditioning})",
+                     config, **fail)
+    w = 1.0 / band_sq(J[:, inl], v, config.noise_std, 1.0)
+    resid = vr[inl] + D[inl] @ v
+    chi2 = float(np.sum(w * resid * resid) / max(n_in - k, 1))
+    # s^2 = max(1, reduced chi-square): never more confident than the noise model says.
+    cov_k = np.linalg.inv(_normal_equations(A, vr[inl], w, vprior)[0]) * max(chi2, 1.0)
+    covariance = np.zeros((3, 3))
+    covariance[:k, :k] = cov_k
+    if k == 2:
+        covariance[2, 2] = config.vertical_std_2d ** 2
+    residual_std = float(np.std(resid)) if n_in > 1 else float("nan")
+    fraction = n_in / n
+    if fraction < config.min_inlier_fraction:
+        return dataclasses.replace(
+            _fail(n_all, f"too many outliers: {fraction:.0%} inliers < {config.min_inlier_fraction:.0%}",
+                  config, **fail), covariance=covariance, residual_std=residual_std)
+    return EgoMotion(velocity, inliers, covariance, True, "standstill" if standstill else "",
+                     residual_std, iterations, k, standstill, config.noise_std, config.azimuth_std,
+                     config.elevation_std)

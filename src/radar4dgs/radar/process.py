@@ -1,0 +1,149 @@
+"""Scene-level radar processing: per-frame ego-motion, optional temporal smoothing, dynamic flags,
+compensated Doppler, and a summary that compares the radar with the scene's own motion data.
+
+Outputs (``out_dir`` is ``<prepared>/radar``):
+    ``<frame>.npz``: ``ego_velocity`` (3,) float64 radar axes (smoothed when enabled), ``covariance``
+    (3, 3), ``ok`` (bool, the frame's own fit), ``inliers`` (N,) bool, ``dynamic`` (N,) bool,
+    ``v_r_comp`` (N,) float32; rows aligned with ``scene.load_radar(i)`` (NaN rows dropped).
+    ``summary.json``: per-frame speed, ok, reason, and the disagreement with the scene's motion data.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from radar4dgs.config import to_dict
+from radar4dgs.data.atomic import atomic_write_bytes, atomic_write_json
+from radar4dgs.radar.classify import classify_dynamic
+from radar4dgs.radar.config import RadarConfig
+from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
+from radar4dgs.radar.poses import expected_radar_velocity, fill_gaps
+
+NPZ_KEYS = ("ego_velocity", "covariance", "ok", "inliers", "dynamic", "v_r_comp")
+
+
+def fit_frames(scans: Iterable[tuple[np.ndarray, np.ndarray]], config: RadarConfig,
+               progress: Callable[[Iterable], Iterable] = lambda x: x,
+               radar_to_ego: np.ndarray | None = None) -> list[EgoMotion]:
+    """Per-scan ego-motion; frame i uses seed ``config.seed + i`` and, with ``temporal_prior``, the
+    previous good velocity as an extra hypothesis. ``scans`` yields ((N, 3) xyz, (N,) v_r).
+    With ``radar_to_ego`` the ground-vehicle prior (``vertical_prior_std``) is applied."""
+    vertical = None if radar_to_ego is None else np.asarray(radar_to_ego)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    fits: list[EgoMotion] = []
+    prior = None
+    for i, (xyz, v_r) in enumerate(progress(scans)):
+        fit = estimate_ego_motion(xyz, v_r, config, prior=prior if config.temporal_prior else None,
+                                  vertical_axis=vertical, seed=config.seed + i)
+        if fit.ok:
+            prior = fit.velocity
+        fits.append(fit)
+    return fits
+
+
+def smooth_velocities(timestamps: np.ndarray, fits: list[EgoMotion], config: RadarConfig) -> np.ndarray:
+    """(T, 3) velocities after temporal smoothing over ``smoothing_window`` frames (ok fits only;
+    failed frames are interpolated from neighbours; with no ok fit at all, the raw estimates)."""
+    raw = np.stack([f.velocity if f.ok else np.full(3, np.nan) for f in fits])
+    if not np.isfinite(raw).any():
+        return np.stack([f.velocity for f in fits])
+    filled = fill_gaps(np.asarray(timestamps, dtype=np.float64), raw)
+    if config.smoothing == "none":
+        return np.where(np.isfinite(raw), raw, filled)
+    half = max(config.smoothing_window, 1) // 2
+    out = np.empty_like(filled)
+    for i in range(len(fits)):
+        window = [j for j in range(max(0, i - half), min(len(fits), i + half + 1)) if fits[j].ok]
+        if not window:
+            out[i] = filled[i]
+        elif config.smoothing == "median":
+            out[i] = np.median(raw[window], axis=0)
+        else:
+            # Inverse-covariance weighted mean: a noisy frame pulls less.
+            info = [np.linalg.pinv(fits[j].covariance) for j in window]
+            out[i] = np.linalg.pinv(sum(info)) @ sum(m @ raw[j] for m, j in zip(info, window))
+    return out
+
+
+def _save_npz(path: Path, **arrays: np.ndarray) -> None:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
+                  progress: Callable[[Iterable], Iterable] = lambda x: x) -> dict:
+    """Run the radar front end on every frame of ``scene`` and write ``out_dir`` (module doc).
+
+    Returns the summary dict (also written as ``summary.json``).
+    """
+    import dataclasses
+
+    config = config or RadarConfig()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scans = [scene.load_radar(i) for i in range(len(scene))]
+    points = [(s.xyz.astype(np.float64), s.v_r.astype(np.float64)) for s in scans]
+    fits = fit_frames(points, config, progress, scene.radar.radar_to_ego)
+    stamps = np.array([f.radar_timestamp for f in scene.frames])
+    velocities = smooth_velocities(stamps, fits, config)
+
+    frames = []
+    for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points)):
+        used = dataclasses.replace(fit, velocity=velocities[i])
+        if not np.all(np.isfinite(used.covariance)) and np.all(np.isfinite(used.velocity)):
+            # Filled-in frame: no own covariance; borrow a loose one so thresholds stay finite.
+            used = dataclasses.replace(used, covariance=np.eye(3) * (10 * config.noise_std) ** 2)
+        dynamic, comp = classify_dynamic(xyz, v_r, used, config)
+        _save_npz(out_dir / f"{scene.frames[i].name}.npz", ego_velocity=used.velocity.astype(np.float64),
+                  covariance=used.covariance.astype(np.float64), ok=np.bool_(fit.ok),
+                  inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32))
+        frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
+                       "points": int(len(xyz)), "inliers": int(fit.inliers.sum()),
+                       "dynamic": int(dynamic.sum()), "speed": _finite_or_none(float(np.linalg.norm(used.velocity))),
+                       "velocity": [_finite_or_none(x) for x in used.velocity],
+                       "residual_std": _finite_or_none(fit.residual_std), "dof": fit.dof,
+                       "iterations": fit.iterations})
+
+    summary: dict[str, Any] = {"frames": frames, "num_ok": int(sum(f.ok for f in fits)),
+                               "num_frames": len(fits), "config": to_dict(config)}
+    summary["disagreement"] = compare_with_scene(scene, velocities)
+    for i, entry in enumerate(frames):
+        errs = summary["disagreement"].get("per_frame")
+        entry["disagreement"] = None if errs is None else errs[i]
+    atomic_write_json(out_dir / "summary.json", summary)
+    return summary
+
+
+def compare_with_scene(scene, velocities: np.ndarray) -> dict:
+    """Disagreement (m/s) between (T, 3) radar velocities and what the scene's ego_velocity / poses
+    imply (:func:`expected_radar_velocity`): per-frame norm of the difference, RMSE and max."""
+    expected, source = expected_radar_velocity(scene)
+    if expected is None:
+        return {"source": None, "note": source, "per_frame": None, "rmse": None, "max": None}
+    err = np.linalg.norm(velocities - expected, axis=1)
+    good = np.isfinite(err)
+    note = ""
+    if scene.source.get("poses_from_radar"):
+        note = "the scene's poses were themselves integrated from this radar: not an independent check"
+    return {"source": source, "note": note,
+            "per_frame": [_finite_or_none(e) for e in err],
+            "rmse": _finite_or_none(float(np.sqrt(np.mean(err[good] ** 2)))) if good.any() else None,
+            "max": _finite_or_none(float(err[good].max())) if good.any() else None}
+
+
+def load_radar_outputs(prepared_radar: str | Path, name: str) -> dict[str, np.ndarray]:
+    """The arrays of one frame's ``<name>.npz`` (keys ``NPZ_KEYS``)."""
+    path = Path(prepared_radar) / f"{name}.npz"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing file (run `radar4dgs prepare` first)")
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in NPZ_KEYS}
