@@ -22,6 +22,9 @@ from tqdm import tqdm
 from radar4dgs.config import PresetName, save_config, to_dict
 from radar4dgs.data.atomic import atomic_directory, atomic_write_json
 from radar4dgs.data.scene import Scene, SceneError, read_scene
+from radar4dgs.depth.config import DepthConfig
+from radar4dgs.depth.pipeline import write_depth
+from radar4dgs.depth.sources import DepthModelError
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.process import prepare_radar
 
@@ -34,9 +37,12 @@ class PrepareConfig:
 
     # Stage "radar": ego-motion RANSAC, dynamic points, compensated Doppler.
     radar: RadarConfig = field(default_factory=RadarConfig)
+    # Stage "depth": monocular depth made metric by the static radar points; sky masks.
+    depth: DepthConfig = field(default_factory=DepthConfig)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
-        name: {"radar": dict(values)} for name, values in RadarConfig.PRESETS.items()}
+        name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {}))}
+        for name in ("tiny", "small", "paper")}
 
 
 @dataclass(frozen=True)
@@ -54,8 +60,16 @@ def _run_radar(scene: Scene, out_dir: Path, config: RadarConfig, progress: Calla
     return {"frames": summary["num_frames"], "ok": summary["num_ok"]}
 
 
+def _run_depth(scene: Scene, out_dir: Path, config: DepthConfig, progress: Callable) -> dict:
+    # The radar stage has already been renamed into place beside this stage's temporary folder.
+    summary = write_depth(scene, out_dir, out_dir / "sky", config, progress,
+                          radar_dir=out_dir.parent / "radar")
+    return {"frames": len(summary["frames"]), "fallback_frames": len(summary.get("fallbacks", []))}
+
+
 STAGES: tuple[Stage, ...] = (
     Stage("radar", lambda c: c.radar, _run_radar),
+    Stage("depth", lambda c: c.depth, _run_depth),
 )
 
 
@@ -111,7 +125,7 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
 
 @dataclass
 class PrepareCommand:
-    """Run the front end on a scene: radar ego-motion and dynamic points (more stages to come)."""
+    """Run the front end on a scene: radar ego-motion and dynamic points, metric depth and sky masks."""
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]
@@ -134,7 +148,7 @@ class PrepareCommand:
         try:
             status = run_prepare(self.scene, self.out, self.config, self.force, tuple(self.only),
                                  progress=not self.quiet)
-        except (SceneError, ValueError, FileExistsError) as exc:
+        except (SceneError, ValueError, FileExistsError, DepthModelError) as exc:
             print(f"radar4dgs prepare: {exc}", file=sys.stderr)
             return 1
         prepared = self.out if self.out is not None else self.scene / "prepared"

@@ -60,16 +60,16 @@ def test_scene_without_poses_reports_no_disagreement(tmp_path):
 
 def test_prepare_command_skips_and_forces(tmp_path, capsys):
     root = write_tiny_scene(tmp_path / "scene", frames=3)
-    assert main(["prepare", str(root), "--quiet", "--preset", "tiny"]) == 0
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny"]) == 0
     assert "radar: ran" in capsys.readouterr().out
     marker = root / "prepared" / "radar" / "stage.json"
     first = marker.stat().st_mtime_ns
-    assert main(["prepare", str(root), "--quiet", "--preset", "tiny"]) == 0
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny"]) == 0
     assert "radar: skipped" in capsys.readouterr().out and marker.stat().st_mtime_ns == first
     # A changed config reruns the stage; --force reruns it anyway.
-    assert main(["prepare", str(root), "--quiet", "--preset", "tiny", "--config.radar.noise-std", "0.2"]) == 0
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny", "--config.radar.noise-std", "0.2"]) == 0
     assert "radar: ran" in capsys.readouterr().out
-    assert main(["prepare", str(root), "--quiet", "--preset", "tiny", "--config.radar.noise-std", "0.2",
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny", "--config.radar.noise-std", "0.2",
                  "--force"]) == 0
     assert "radar: ran" in capsys.readouterr().out
     config = load_config(PrepareConfig, root / "prepared" / "config.json")
@@ -78,7 +78,7 @@ def test_prepare_command_skips_and_forces(tmp_path, capsys):
 
 def test_prepare_out_folder_and_errors(tmp_path, capsys):
     root = write_tiny_scene(tmp_path / "scene", frames=2)
-    status = run_prepare(root, tmp_path / "elsewhere", PrepareConfig(), progress=False)
+    status = run_prepare(root, tmp_path / "elsewhere", PrepareConfig(), only=("radar",), progress=False)
     assert status == {"radar": "ran"} and (tmp_path / "elsewhere" / "radar" / "000000.npz").is_file()
     assert not (root / "prepared").exists()
     with pytest.raises(ValueError, match="unknown stage"):

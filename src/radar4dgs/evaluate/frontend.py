@@ -128,8 +128,29 @@ def evaluate_radar(scene: Scene, prepared_dir: str | Path) -> dict:
     }
 
 
-# Section name -> function(scene, prepared_dir) -> dict; later stages register theirs here.
-SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar}
+def evaluate_depth(scene: Scene, prepared_dir: Path) -> dict:
+    # Imported here so that scoring the radar alone does not import the depth stage.
+    from radar4dgs.depth.metrics import depth_frontend_metrics
+
+    return depth_frontend_metrics(scene, prepared_dir)
+
+
+# Section name (= prepared stage folder) -> function(scene, prepared_dir) -> dict.
+SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth}
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The scalar metrics of every section as aligned ``section.metric  value`` lines."""
+    lines = []
+    for section in SECTIONS:
+        for key, value in (report.get(section) or {}).items():
+            if isinstance(value, bool) or not isinstance(value, (int, float, type(None))):
+                continue
+            shown = "null" if value is None else (f"{value:.4f}" if isinstance(value, float) else str(value))
+            lines.append(f"{section + '.' + key:<40}{shown}")
+    if report.get("skipped"):
+        lines.append(f"{'skipped (not prepared)':<40}{', '.join(report['skipped'])}")
+    return "\n".join(lines)
 
 
 def evaluate_frontend(scene: Scene, prepared_dir: str | Path) -> dict[str, Any]:
@@ -169,6 +190,7 @@ class FrontendEvalCommand:
             return 1
         if self.json is not None:
             atomic_write_json(self.json, report)
+            print(format_report(report))
             print(f"wrote {self.json}")
         else:
             print(_json.dumps(report, indent=2))
