@@ -119,7 +119,7 @@ def evaluate_scene(root: Path, config: PrepareConfig, parked: bool) -> dict:
     prepared = root / "prepared"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
-        run_prepare(root, prepared, config, force=True, progress=False)
+        run_prepare(root, prepared, config, force=True, only=("radar",), progress=False)
         report = evaluate_radar(scene, prepared)
     if parked:
         report.update(parked_car_rates(scene, prepared))
@@ -161,9 +161,9 @@ def truck_run(scans, truths, radar_to_ego, config: RadarConfig, seed: int, **tru
     for i, ((xyz, v_r), v_true) in enumerate(zip(scans, truths)):
         xyz2, vr2, is_truck = inject_truck(xyz, v_r, v_true, radar_to_ego, rng, **truck)
         ego = estimate_ego_motion(xyz2, vr2, config, prior=prior, vertical_axis=vertical, seed=seed + i)
+        prior = ego.velocity if ego.ok else None   # as radar.process.fit_frames
         if ego.ok:
             ok += 1
-            prior = ego.velocity
         else:
             reasons.add(ego.reason)
         err = float(np.linalg.norm(ego.velocity - v_true)) if np.all(np.isfinite(ego.velocity)) else float("nan")
@@ -213,7 +213,7 @@ def aimotive(work: Path, src: Path) -> dict:
     raw_root = work / "aimotive-raw-prepared"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
-        run_prepare(root, raw_root, PrepareConfig(radar=RadarConfig(**raw)), force=True, progress=False)
+        run_prepare(root, raw_root, PrepareConfig(radar=RadarConfig(**raw)), force=True, only=("radar",), progress=False)
     raw_summary = json.loads((raw_root / "radar" / "summary.json").read_text())
     raw_speed = np.array([f["speed"] for f in raw_summary["frames"]], dtype=float)
     # False positives that look like noise (|v_r_comp| <= 2 m/s) vs fast unlabelled movers.
@@ -228,8 +228,8 @@ def aimotive(work: Path, src: Path) -> dict:
     truths = velocity  # the smoothed radar estimate: the truck test measures robustness, not accuracy
     scans = [(s.xyz.astype(np.float64), s.v_r.astype(np.float64))
              for s in (scene.load_radar(i) for i in range(len(scene)))]
-    # This radar has almost no elevation spread (+-2 deg); a truck it sees is flat too (a 3.8 m
-    # tall one would hand the RANSAC a 3-D problem the static world cannot condition).
+    # This radar has almost no elevation spread (+-2 deg): a flat truck, and a 3.8 m tall one whose
+    # elevation spread must not make the fit 3-D (the static inliers decide the model).
     truck = truck_run(scans, truths, scene.radar.radar_to_ego, radar_config, 0, centre=(30.0, 3.5, 0.4),
                       size=(12.0, 2.6, 0.3))
     truck_tall = truck_run(scans, truths, scene.radar.radar_to_ego, radar_config, 0, centre=(30.0, 3.5, 1.5))
@@ -282,7 +282,7 @@ def main(argv=None) -> int:
                 free = PrepareConfig(radar=RadarConfig(**{**config.radar.__dict__, "vertical_prior_std": 0.0}))
                 r["ego_velocity_rmse_without_vertical_prior"] = evaluate_scene(
                     root, free, parked=False)["ego_velocity_rmse"]
-                run_prepare(root, root / "prepared", config, force=True, progress=False)
+                run_prepare(root, root / "prepared", config, force=True, only=("radar",), progress=False)
                 print(f"{variant} seed {seed}: rmse {r['ego_velocity_rmse']:.4f} m/s (no vertical prior "
                       f"{r['ego_velocity_rmse_without_vertical_prior']:.4f}), precision "
                       f"{r['dynamic_precision']:.3f}, recall {r['dynamic_recall']:.3f}, static residual "

@@ -177,3 +177,82 @@ def test_noise_free_recovery(vx, vy, vz, seed):
     ego = estimate_ego_motion(xyz, v_r, seed=seed)
     assert ego.ok
     np.testing.assert_allclose(ego.velocity, v, atol=1e-6)
+
+
+def _flat_scan_with_tall_truck(seed):
+    """aiMotive-like: 40 static points, +-14 deg azimuth, +-2 deg elevation, 30 m/s; plus 40 points
+    on a 3.8 m tall truck 30 m ahead (compact in azimuth, spread in elevation) at 8 m/s."""
+    rng = np.random.default_rng(seed)
+    v_s = np.array([30.0, 0.1, 0.0])
+    xyz, v_r = static_scan(rng, 40, v_s, noise=0.05, az=0.24, el=0.035)
+    truck = np.array([30.0, 3.5, 1.5]) + rng.uniform([-6, -1.3, -1.9], [6, 1.3, 1.9], (40, 3))
+    d = truck / np.linalg.norm(truck, axis=1, keepdims=True)
+    vr_truck = d @ (np.array([8.0, 0.0, 0.0]) - v_s) + rng.normal(0, 0.05, 40)
+    return np.vstack([xyz, truck]), np.concatenate([v_r, vr_truck]), v_s
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_tall_truck_on_flat_radar(seed):
+    # The truck's elevation spread must not turn the fit 3-D, and the fit must either find the
+    # static world or say why not: never ok=True with the truck's velocity.
+    xyz, v_r, v_s = _flat_scan_with_tall_truck(seed)
+    ego = estimate_ego_motion(xyz, v_r, seed=seed)
+    if ego.ok:
+        assert ego.dof == 2
+        assert np.linalg.norm(ego.velocity[:2] - v_s[:2]) < 0.2
+        assert not ego.inliers[40:].any()
+    else:
+        assert ego.reason
+
+
+def test_compact_cluster_is_not_ok():
+    # Only the truck is consistent (the "static" points are random): the fit must not claim ok.
+    rng = np.random.default_rng(11)
+    xyz, v_r, _ = _flat_scan_with_tall_truck(0)
+    v_r = v_r.copy()
+    v_r[:40] = rng.uniform(-40, 0, 40)
+    ego = estimate_ego_motion(xyz, v_r, seed=0)
+    assert not ego.ok and "compact angular cluster" in ego.reason
+
+
+def test_prior_disagreement_is_not_ok():
+    rng = np.random.default_rng(12)
+    xyz, v_r = static_scan(rng, 200, V_S)
+    ok = estimate_ego_motion(xyz, v_r, prior=V_S + 0.5)
+    assert ok.ok
+    bad = estimate_ego_motion(xyz, v_r, prior=V_S + np.array([8.0, 0, 0]))
+    assert not bad.ok and "prior" in bad.reason
+    assert np.linalg.norm(bad.velocity - V_S) < 0.05
+
+
+def test_planar_2d_model_with_vertical_axis():
+    # A radar pitched by 2 deg on a car at 30 m/s: the 2-D model moves in the ego's plane.
+    rng = np.random.default_rng(13)
+    pitch = np.radians(2.0)
+    vertical = np.array([-np.sin(pitch), 0.0, np.cos(pitch)])   # ego z in radar axes
+    v_s = 30.0 * np.array([np.cos(pitch), 0.0, np.sin(pitch)])  # ego x in radar axes
+    xyz, v_r = static_scan(rng, 60, v_s, el=0.01)
+    ego = estimate_ego_motion(xyz, v_r, vertical_axis=vertical, seed=0)
+    assert ego.ok and ego.dof == 2
+    assert abs(ego.velocity @ vertical) < 1e-9
+    assert np.linalg.norm(ego.velocity - v_s) < 0.05
+
+
+def test_errors_in_variables_vz_bias():
+    # 1 deg elevation noise, all points below the horizon, 20 m/s: plain LS biases vz; the
+    # corrected LS removes most of that bias (mean over scans).
+    errs, plain = [], []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        n = 600
+        a, e = rng.uniform(-1.0, 1.0, n), rng.uniform(-0.17, 0.0, n)
+        d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
+        v_s = np.array([20.0, 0.0, 0.0])
+        v_r = -d @ v_s + rng.normal(0, 0.05, n)
+        e_meas = e + rng.normal(0, 0.017, n)
+        d_meas = np.stack([np.cos(e_meas) * np.cos(a), np.cos(e_meas) * np.sin(a), np.sin(e_meas)], axis=1)
+        ego = estimate_ego_motion(d_meas * 30.0, v_r, seed=seed, model="3d", noise_std=0.05)
+        assert ego.ok
+        errs.append(ego.velocity[2] - v_s[2])
+        plain.append(np.linalg.lstsq(-d_meas, v_r, rcond=None)[0][2] - v_s[2])
+    assert abs(np.mean(errs)) < 0.5 * abs(np.mean(plain))

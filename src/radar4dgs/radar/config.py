@@ -43,10 +43,12 @@ class RadarConfig:
     # The final normalised design matrix (inlier directions / sqrt(n)) must have its smallest
     # singular value above this, else the velocity is unobservable and ok = False.
     min_conditioning: float = 0.01
-    # "3d" solves (vx, vy, vz); "2d" solves (vx, vy) with vz = 0 (radars with almost no elevation
-    # spread, like a conventional automotive radar); "auto" picks 2d when the scan's elevation
-    # spread leaves vz unobservable (smallest singular value of all directions below
-    # `min_conditioning` * 3).
+    # "3d" solves (vx, vy, vz); "2d" solves the planar model, vz = 0 (in the ego's x-y plane when
+    # the scene processor passes the mounting, else the radar's), for radars with almost no
+    # elevation spread, like a conventional automotive radar; "auto" fits 2d first and goes 3d only when the
+    # STATIC INLIERS of that fit spread enough in elevation to determine vz (smallest singular
+    # value of their directions >= `min_conditioning` * 3), and keeps 3d only when the 3d fit's own
+    # inliers still do. (Deciding from all points let a tall moving truck make a flat radar 3d.)
     model: Literal["auto", "3d", "2d"] = "auto"
     # Variance prior (m/s) put on vz in 2d mode, so the covariance stays 3x3 and honest.
     vertical_std_2d: float = 0.5
@@ -57,6 +59,17 @@ class RadarConfig:
     # a compact dense object (a big truck) cannot outvote the static world spread over the field of
     # view. 0 = plain inlier count.
     angular_bin_deg: float = 5.0
+    # Honesty check: the fit is not `ok` when more than this fraction of its inliers lie inside one
+    # azimuth window (`cluster_window_fraction` of the scan's azimuth extent, at least two angular
+    # bins): the static world seen from a moving radar spans the field of view, a big moving
+    # object does not. 1 disables the check.
+    max_cluster_fraction: float = 0.9
+    # Width of that azimuth window as a fraction of the scan's azimuth extent (5-95 % percentiles).
+    cluster_window_fraction: float = 0.25
+    # Honesty check (when a prior velocity is given, e.g. the previous scan's): the fit is not `ok`
+    # when it differs from the prior by more than this (m/s) plus 3 sigma of its own covariance.
+    # 3 m/s between consecutive scans at 10 Hz is 30 m/s^2 (3 g), beyond any car. 0 disables it.
+    prior_gate: float = 3.0
     # Random seed of the RANSAC sampler (np.random.default_rng); per frame the scene processor adds
     # the frame index so frames are independent but reproducible.
     seed: int = 0

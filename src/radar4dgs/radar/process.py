@@ -31,7 +31,9 @@ def fit_frames(scans: Iterable[tuple[np.ndarray, np.ndarray]], config: RadarConf
                progress: Callable[[Iterable], Iterable] = lambda x: x,
                radar_to_ego: np.ndarray | None = None) -> list[EgoMotion]:
     """Per-scan ego-motion; frame i uses seed ``config.seed + i`` and, with ``temporal_prior``, the
-    previous good velocity as an extra hypothesis. ``scans`` yields ((N, 3) xyz, (N,) v_r).
+    previous frame's velocity (when that fit was ok) as an extra hypothesis and as the reference of
+    the ``prior_gate`` check (only the previous frame's: after a failed frame the next one starts
+    afresh, so one wrong fit cannot lock out the following ones). ``scans`` yields ((N, 3) xyz, (N,) v_r).
     With ``radar_to_ego`` the ground-vehicle prior (``vertical_prior_std``) is applied."""
     vertical = None if radar_to_ego is None else np.asarray(radar_to_ego)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
     fits: list[EgoMotion] = []
@@ -39,8 +41,7 @@ def fit_frames(scans: Iterable[tuple[np.ndarray, np.ndarray]], config: RadarConf
     for i, (xyz, v_r) in enumerate(progress(scans)):
         fit = estimate_ego_motion(xyz, v_r, config, prior=prior if config.temporal_prior else None,
                                   vertical_axis=vertical, seed=config.seed + i)
-        if fit.ok:
-            prior = fit.velocity
+        prior = fit.velocity if fit.ok else None
         fits.append(fit)
     return fits
 
