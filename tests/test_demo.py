@@ -17,6 +17,7 @@ def test_demo_tiny(tmp_path, capsys):
     assert report["radar"]["ego_velocity_rmse"] < 0.1
     assert report["radar"]["dynamic_recall"] > 0.9
     assert report["depth"]["depth_absrel"] < 0.08
+    assert report["masks"]["mask_iou"] > 0.5
     # A second run reuses the scene and the prepared stages.
     assert main(["demo", "--preset", "tiny", "--seed", "2", "--out", str(out)]) == 0
-    assert "radar: skipped, depth: skipped" in capsys.readouterr().out
+    assert "radar: skipped, depth: skipped, masks: skipped" in capsys.readouterr().out

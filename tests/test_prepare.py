@@ -1,5 +1,5 @@
-"""`radar4dgs prepare` across stages: radar then depth on a synthetic scene, and a clear error when a
-scene has no depth source."""
+"""`radar4dgs prepare` across stages: radar, depth and masks on a synthetic scene, caching between
+runs, and a clear error when a scene has no depth source."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def tiny_scene(tmp_path_factory) -> Path:
 def test_prepare_runs_radar_then_depth_and_frontend_eval_scores_both(tiny_scene, tmp_path, capsys):
     assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "radar: ran" in out and "depth: ran" in out
+    assert "radar: ran" in out and "depth: ran" in out and "masks: ran" in out
     scene = read_scene(tiny_scene)
     depth = np.load(tiny_scene / "prepared" / "depth" / f"{scene.frames[0].name}.npy")
     truth = scene.load_optional("gt/depth", 0)
@@ -35,9 +35,13 @@ def test_prepare_runs_radar_then_depth_and_frontend_eval_scores_both(tiny_scene,
     assert np.median(np.abs(depth[valid] / truth[valid] - 1)) < 0.05
     assert main(["frontend-eval", str(tiny_scene), "--json", str(tmp_path / "fe.json")]) == 0
     out = capsys.readouterr().out
-    assert "radar.dynamic_recall" in out and "depth.depth_absrel" in out
+    assert "radar.dynamic_recall" in out and "depth.depth_absrel" in out and "masks.mask_iou" in out
     assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet"]) == 0
     assert "radar: skipped" in capsys.readouterr().out
+    # A changed depth config reruns depth and the masks that read it, not the radar before it.
+    assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet", "--config.depth.scale-method", "paper"]) == 0
+    out = capsys.readouterr().out
+    assert "radar: skipped" in out and "depth: ran" in out and "masks: ran" in out
 
 
 def test_scene_without_a_depth_source_fails_clearly(tmp_path, capsys):

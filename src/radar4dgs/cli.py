@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("radar4dgs.data.synth.command", "SynthCommand"),
     "convert aimotive": ("radar4dgs.data.convert.aimotive", "ConvertAimotiveCommand"),
     "inspect": ("radar4dgs.data.inspect", "InspectCommand"),
+    "seg-train": ("radar4dgs.segment.command", "SegTrainCommand"),
     "prepare": ("radar4dgs.prepare", "PrepareCommand"),
     "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand"),
 }

@@ -10,7 +10,6 @@ from radar4dgs.config import PresetName, preset
 
 # Stages of DESIGN.md not yet implemented, with the issue that builds each; the demo says so.
 NOT_BUILT_YET: tuple[str, ...] = (
-    "radar-camera dynamic segmentation model in prepare (issue 5)",
     "VGPT deformation field and optical-flow supervision (issue 7)",
     "Gaussian training, evaluation and rendering (issue 8)",
 )

@@ -27,6 +27,7 @@ from radar4dgs.depth.pipeline import write_depth
 from radar4dgs.depth.sources import DepthModelError
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.process import prepare_radar
+from radar4dgs.segment.infer import SegInferConfig, prepare_masks
 
 STAGE_MARKER = "stage.json"
 
@@ -39,9 +40,12 @@ class PrepareConfig:
     radar: RadarConfig = field(default_factory=RadarConfig)
     # Stage "depth": monocular depth made metric by the static radar points; sky masks.
     depth: DepthConfig = field(default_factory=DepthConfig)
+    # Stage "masks": radar-camera dynamic segmentation (the shipped network by default).
+    masks: SegInferConfig = field(default_factory=SegInferConfig)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
-        name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {}))}
+        name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {})),
+               "masks": dict(SegInferConfig.PRESETS.get(name, {}))}
         for name in ("tiny", "small", "paper")}
 
 
@@ -67,9 +71,16 @@ def _run_depth(scene: Scene, out_dir: Path, config: DepthConfig, progress: Calla
     return {"frames": len(summary["frames"]), "fallback_frames": len(summary.get("fallbacks", []))}
 
 
+def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Callable) -> dict:
+    summary = prepare_masks(scene, out_dir.parent, config, out_dir=out_dir, progress=progress)
+    return {"frames": len(summary["frames"]),
+            "frames_with_dynamic_pixels": sum(f["dynamic_pixels"] > 0 for f in summary["frames"])}
+
+
 STAGES: tuple[Stage, ...] = (
     Stage("radar", lambda c: c.radar, _run_radar),
     Stage("depth", lambda c: c.depth, _run_depth),
+    Stage("masks", lambda c: c.masks, _run_masks),
 )
 
 
@@ -103,14 +114,17 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
     save_config(config, prepared / "config.json")
     fingerprint = scene_fingerprint(scene)
     status: dict[str, str] = {}
+    # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
+    upstream_changed = False
     for stage in STAGES:
         if only and stage.name not in only:
             continue
         stage_dir = prepared / stage.name
         stage_config = stage.config_of(config)
-        if not force and stage_is_current(stage_dir, stage_config, fingerprint):
+        if not force and not upstream_changed and stage_is_current(stage_dir, stage_config, fingerprint):
             status[stage.name] = "skipped"
             continue
+        upstream_changed = True
 
         def bar(items, _name=stage.name):
             return tqdm(items, total=len(scene), desc=_name, unit="frame", disable=not progress)
@@ -125,7 +139,7 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
 
 @dataclass
 class PrepareCommand:
-    """Run the front end on a scene: radar ego-motion and dynamic points, metric depth and sky masks."""
+    """Run the front end on a scene: radar ego-motion and dynamic points, metric depth, sky and dynamic masks."""
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]

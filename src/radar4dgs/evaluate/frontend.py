@@ -135,8 +135,15 @@ def evaluate_depth(scene: Scene, prepared_dir: Path) -> dict:
     return depth_frontend_metrics(scene, prepared_dir)
 
 
+def evaluate_masks(scene: Scene, prepared_dir: Path) -> dict:
+    from radar4dgs.segment.metrics import segmentation_frontend_metrics
+
+    return segmentation_frontend_metrics(scene, prepared_dir)
+
+
 # Section name (= prepared stage folder) -> function(scene, prepared_dir) -> dict.
-SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth}
+SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth,
+                                                     "masks": evaluate_masks}
 
 
 def format_report(report: dict[str, Any]) -> str:

@@ -1,0 +1,213 @@
+"""Dynamic masks for a scene: anchors → patches → network → paste-back by max → threshold.
+
+:func:`prepare_masks` is the front-end step ``prepare`` calls; it writes
+``<prepared>/masks/<frame>.png`` (uint8 0/255, 255 = moving object) and, when
+``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
+``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import io
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Literal
+
+import cv2
+import numpy as np
+import torch
+
+from radar4dgs.config import to_dict
+from radar4dgs.data.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
+from radar4dgs.data.scene import Scene
+from radar4dgs.segment.dataset import DynamicSource, load_radar_frame
+from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
+from radar4dgs.segment.patches import (AnchorSampling, RadarFrame, candidate_anchors, extract_patches, paste_max, patch_boxes,
+                                       patch_side, radar_features, resize_patches, sample_anchors)
+
+# The checkpoint shipped in the package (segment/weights/), and its card.
+DEFAULT_WEIGHTS = "segnet-small.pt"
+DEFAULT_CARD = "segnet-small.json"
+
+
+@dataclass
+class SegInferConfig:
+    """How ``prepare`` turns radar and images into dynamic masks."""
+
+    method: Literal["model", "baseline"] = "model"  # the learned network, or the non-learned radar-prompted flood fill
+    checkpoint: Path | None = None  # network checkpoint (seg-train's best.pt); None = the one shipped in the package
+    threshold: float = 0.5  # tau: a pixel is dynamic when its pasted probability exceeds this
+    num_anchors: int = 8  # dynamic radar points sampled as patch anchors per frame (fewer if fewer exist)
+    anchor_sampling: AnchorSampling = "random"  # random (paper), farthest (FPS in the image), cover (no two anchors within cover_radius)
+    cover_radius: float = 0.25  # for "cover": minimum anchor spacing, as a fraction of the patch side
+    patch_scale: float = 1.0  # patch side = round(256 * W / 1920 * this) px (43 px at 320x180)
+    max_points: int = 64  # radar points per patch fed to the network (nearest to the anchor kept)
+    anchor_connected: bool = False  # keep, per patch, only the above-threshold regions touching the anchor (within anchor_radius)
+    anchor_radius: float = 0.08  # for anchor_connected: tolerance around the anchor pixel, as a fraction of the patch side
+    dynamic_source: DynamicSource = "auto"  # where dynamic radar points come from: prepared radar/, estimate, oracle (gt)
+    seed: int = 0  # anchor sampling seed (frame i uses seed + i, so masks are reproducible)
+    save_prob: bool = True  # also write <frame>_prob.npy (float16 pasted probabilities)
+    device: str = "cpu"  # torch device for the network
+
+    PRESETS = {"tiny": {"num_anchors": 4}, "small": {}, "paper": {}}
+
+
+@dataclass
+class FrameSegmentation:
+    """One frame's result: ``prob`` (H, W) float32 pasted probabilities, ``anchors`` (K, 2) pixel
+    positions of the anchors, ``boxes`` (K, 4) their patches."""
+
+    prob: np.ndarray
+    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+
+    def mask(self, threshold: float) -> np.ndarray:
+        return self.prob > threshold
+
+
+def default_checkpoint_bytes() -> bytes:
+    """The shipped checkpoint's bytes (``importlib.resources``)."""
+    resource = importlib.resources.files("radar4dgs.segment").joinpath("weights", DEFAULT_WEIGHTS)
+    if not resource.is_file():
+        raise FileNotFoundError(f"the package ships no segmentation weights ({DEFAULT_WEIGHTS}); "
+                                f"train one with `radar4dgs seg-train` and pass its best.pt")
+    return resource.read_bytes()
+
+
+def load_model(checkpoint: Path | None = None, device: torch.device | str = "cpu",
+               dtype: torch.dtype = torch.float32) -> RadarCameraSegNet:
+    """The network of ``checkpoint`` (a seg-train checkpoint), or of the shipped weights when None."""
+    if checkpoint is None:
+        payload = torch.load(io.BytesIO(default_checkpoint_bytes()), map_location="cpu", weights_only=True)
+    else:
+        payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    return model_from_checkpoint(payload, device, dtype)
+
+
+def patch_batch(image: torch.Tensor, radar: RadarFrame, anchors: np.ndarray, side: int, input_size: int,
+                max_points: int, use_rcs: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray]:
+    """Network inputs for the anchors of one frame.
+
+    Args:
+        image: (3, H, W) float in [0, 1]; radar: projected points; anchors: (K,) point indices.
+
+    Returns:
+        patches (K, 3, S, S), points (K, P, F), valid (K, P) bool on ``image``'s device and dtype,
+        and boxes (K, 4) int64.
+    """
+    boxes = patch_boxes(radar.uv[anchors], side)
+    patches = extract_patches(image, boxes, input_size)
+    feats, valid = radar_features(radar, boxes, anchors, max_points, use_rcs)
+    points = torch.as_tensor(feats, device=image.device, dtype=image.dtype)
+    return patches, points, torch.as_tensor(valid, device=image.device), boxes
+
+
+def image_tensor(image: np.ndarray, device: torch.device | str, dtype: torch.dtype) -> torch.Tensor:
+    """(H, W, 3) uint8 → (3, H, W) in [0, 1]."""
+    return torch.tensor(image, device=device).permute(2, 0, 1).to(dtype) / 255.0
+
+
+@torch.no_grad()
+def segment_frame(model: RadarCameraSegNet, image: np.ndarray, radar: RadarFrame, config: SegInferConfig,
+                  rng: np.random.Generator) -> FrameSegmentation:
+    """Pasted dynamic probability of one frame; all zeros when no dynamic point is in view.
+
+    Args:
+        image: (H, W, 3) uint8 RGB. radar: the frame's projected points. rng: anchor sampling.
+    """
+    height, width = image.shape[:2]
+    candidates = candidate_anchors(radar, width, height)
+    if len(candidates) == 0:
+        return FrameSegmentation(np.zeros((height, width), np.float32))
+    side = patch_side(width, config.patch_scale)
+    anchors = sample_anchors(radar.uv, candidates, config.num_anchors, rng, config.anchor_sampling,
+                             config.cover_radius * side)
+    param = next(model.parameters())
+    tensor = image_tensor(image, param.device, param.dtype)
+    patches, points, valid, boxes = patch_batch(tensor, radar, anchors, side, model.config.input_size,
+                                                config.max_points, model.config.use_rcs)
+    prob = resize_patches(torch.sigmoid(model(patches, points, valid)), side)
+    if config.anchor_connected:
+        prob = prob * torch.as_tensor(anchor_regions(prob.float().cpu().numpy() > config.threshold,
+                                                     int(round(config.anchor_radius * side))), device=prob.device)
+    pasted = paste_max(prob, boxes, height, width)
+    return FrameSegmentation(pasted.float().cpu().numpy(), radar.uv[anchors].copy(), boxes)
+
+
+def anchor_regions(masks: np.ndarray, radius: int) -> np.ndarray:
+    """(K, s, s) bool → the same masks keeping only the 8-connected regions that come within
+    ``radius`` px (Chebyshev) of the patch centre pixel ``(s // 2, s // 2)``, where the anchor is.
+
+    A patch should segment the object its anchor lies on; regions elsewhere in the patch (a
+    parked car next to a falsely dynamic radar point) are dropped.
+    """
+    out = np.zeros_like(masks)
+    for k, mask in enumerate(masks):
+        if not mask.any():
+            continue
+        _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        c = mask.shape[0] // 2
+        near = np.unique(labels[max(c - radius, 0):c + radius + 1, max(c - radius, 0):c + radius + 1])
+        out[k] = np.isin(labels, near[near > 0])
+    return out
+
+
+def frame_rng(seed: int, index: int) -> np.random.Generator:
+    """Anchor sampling generator of frame ``index``: reproducible, independent across frames."""
+    return np.random.default_rng([seed, index])
+
+
+def encode_png(mask: np.ndarray) -> bytes:
+    """(H, W) bool → PNG bytes of a uint8 0/255 image."""
+    ok, data = cv2.imencode(".png", np.where(mask, 255, 0).astype(np.uint8))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return data.tobytes()
+
+
+def segment_scene(scene: Scene, prepared_dir: Path | None, config: SegInferConfig,
+                  model: RadarCameraSegNet | None = None):
+    """Yield (index, FrameSegmentation) for every frame, with the method of ``config``."""
+    from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
+
+    if config.method == "model" and model is None:
+        model = load_model(config.checkpoint, config.device)
+    for i in range(len(scene)):
+        radar = load_radar_frame(scene, i, config.dynamic_source, prepared_dir)
+        image = scene.load_image(i)
+        if config.method == "model":
+            yield i, segment_frame(model, image, radar, config, frame_rng(config.seed, i))
+        else:
+            mask = baseline_frame(image, depth_for_baseline(scene, i, prepared_dir), radar, scene.camera.K,
+                                  BaselineConfig())
+            yield i, FrameSegmentation(mask.astype(np.float32))
+
+
+def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig | None = None,
+                  model: RadarCameraSegNet | None = None, out_dir: str | Path | None = None,
+                  progress: Callable[[Iterable], Iterable] | None = None) -> dict:
+    """Write ``<prepared>/masks/`` (or ``out_dir``) for every frame of ``scene`` (module doc),
+    reading the radar and depth stages from ``prepared_dir``. Returns the summary.
+
+    Frames without a dynamic radar point in view get an empty mask. ``progress`` wraps the
+    per-frame iterator (a tqdm bar, for example).
+    """
+    config = config or SegInferConfig()
+    out = Path(out_dir) if out_dir is not None else Path(prepared_dir) / "masks"
+    out.mkdir(parents=True, exist_ok=True)
+    frames, start = [], time.perf_counter()
+    results = segment_scene(scene, Path(prepared_dir), config, model)
+    for i, result in (progress(results) if progress is not None else results):
+        name = scene.frames[i].name
+        mask = result.mask(config.threshold)
+        atomic_write_bytes(out / f"{name}.png", encode_png(mask))
+        if config.save_prob:
+            atomic_save_npy(out / f"{name}_prob.npy", result.prob.astype(np.float16))
+        frames.append({"name": name, "anchors": int(len(result.anchors)), "dynamic_pixels": int(mask.sum())})
+    elapsed = time.perf_counter() - start
+    summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
+               "seconds_per_frame": round(elapsed / max(len(frames), 1), 4)}
+    atomic_write_json(out / "summary.json", summary)
+    return summary
