@@ -11,6 +11,11 @@ Each (resolution, N) configuration runs in its own subprocess so that its peak m
     python benchmarks/raster.py                        # CPU, torch backend, 2 threads
     python benchmarks/raster.py --device cuda          # gsplat and torch backends on CUDA
     python benchmarks/raster.py --sizes 320x180 --counts 20000 --runs 7
+    python benchmarks/raster.py --threads 1 --out /tmp/raster_1t.json   # single-thread CPU time
+
+Next to the wall time, the table reports the process CPU time (user + system, all threads) of
+forward + backward: on a shared machine the wall time depends on what else runs, the CPU time
+of one thread much less so (with more threads it also counts OpenMP spin-waiting).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import json
 import math
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -95,11 +101,16 @@ def run_one(size: str, n: int, backend: str, device: str, runs: int, threads: in
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
 
-    def step() -> tuple[float, float, float]:
+    def cpu_s() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    def step() -> tuple[float, float, float, float]:
         for p in params:
             p.grad = None
         sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
         sync()
+        c0 = cpu_s()
         t0 = time.perf_counter()
         colors, alphas, meta = rasterize(
             *params, scene["viewmats"], scene["Ks"], width, height,
@@ -112,14 +123,15 @@ def run_one(size: str, n: int, backend: str, device: str, runs: int, threads: in
         loss.backward()
         sync()
         t2 = time.perf_counter()
-        return t1 - t0, t2 - t1, float(alphas.mean())
+        c2 = cpu_s()
+        return t1 - t0, t2 - t1, float(alphas.mean()), c2 - c0
 
     g = torch.Generator().manual_seed(1)
     wc = torch.rand(1, height, width, 3, generator=g).to(device)
     wa = torch.rand(1, height, width, 1, generator=g).to(device)
     step()  # warm-up
     times = [step() for _ in range(runs)]
-    total = [f + b for f, b, _ in times]
+    total = [f + b for f, b, _, _ in times]
     row = {
         "size": size,
         "n": n,
@@ -129,9 +141,12 @@ def run_one(size: str, n: int, backend: str, device: str, runs: int, threads: in
         "checkpoint": checkpoint,
         "runs": runs,
         "fwd_bwd_median_s": statistics.median(total),
-        "fwd_median_s": statistics.median(f for f, _, _ in times),
-        "bwd_median_s": statistics.median(b for _, b, _ in times),
+        "fwd_median_s": statistics.median(t[0] for t in times),
+        "bwd_median_s": statistics.median(t[1] for t in times),
         "fwd_bwd_min_s": min(total),
+        "fwd_bwd_cpu_median_s": statistics.median(t[3] for t in times),
+        "fwd_bwd_cpu_min_s": min(t[3] for t in times),
+        "load_avg_1min": os.getloadavg()[0],
         "mean_alpha": times[0][2],
         "peak_rss_mb": peak_rss_mb(),
         "peak_rss_delta_mb": peak_rss_mb() - base_rss,
@@ -162,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     backends = ["torch"] if args.device == "cpu" else ["gsplat", "torch"]
     rows = []
     header = f"{'size':>8} {'N':>6} {'backend':>7} {'fwd+bwd s':>9} {'fwd s':>7} {'bwd s':>7} " \
-             f"{'peak MB':>8} {'target':>8}"  # fmt: skip
+             f"{'cpu s':>7} {'peak MB':>8} {'target':>8}"  # fmt: skip
     print(header)
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads), MKL_NUM_THREADS=str(args.threads))
     for size in args.sizes:
@@ -192,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"{'ok' if row['meets_target'] else 'MISS'} {target}")
                 print(f"{size:>8} {n:>6} {backend:>7} {row['fwd_bwd_median_s']:9.3f} "
                       f"{row['fwd_median_s']:7.3f} {row['bwd_median_s']:7.3f} "
+                      f"{row['fwd_bwd_cpu_median_s']:7.3f} "
                       f"{row.get('peak_cuda_mb', row['peak_rss_mb']):8.0f} {mark:>8}", flush=True)  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     result = {
@@ -200,6 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         "device": args.device,
         "threads": args.threads,
         "runs": args.runs,
+        "load_avg": os.getloadavg(),
         "rows": rows,
     }  # fmt: skip
     args.out.write_text(json.dumps(result, indent=2) + "\n")

@@ -61,6 +61,18 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
     return torch.stack(rows, dim=-1).reshape(q.shape[:-1] + (3, 3))
 
 
+def _rotmat_components(quats: Tensor) -> Tensor:
+    """quat_to_rotmat, component-major: quats (N, 4) -> (3, 3, N)."""
+    q = quats / quats.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    rows = (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )  # fmt: skip
+    return torch.stack(rows, dim=0).reshape((3, 3) + q.shape[:-1])
+
+
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
     """World-space covariances ``R S S^T R^T``. quats (N, 4), scales (N, 3) -> (N, 3, 3)."""
     m = quat_to_rotmat(quats) * scales[..., None, :]  # R @ diag(s)
@@ -90,7 +102,9 @@ def project_gaussians(
     rot = viewmats[:, :3, :3]  # (C, 3, 3)
     trans = viewmats[:, :3, 3]  # (C, 3)
     means_c = torch.einsum("cij,nj->cni", rot, means) + trans[:, None, :]  # (C, N, 3)
-    covars_c = rot[:, None] @ covariance_3d(quats, scales)[None] @ rot[:, None].transpose(-1, -2)
+    # R S of each Gaussian, component-major (3, 3, N) so that every op below runs along N
+    # (vectorised); its covariance is (R S)(R S)^T (see covariance_3d).
+    rs = _rotmat_components(quats) * scales.transpose(0, 1)[None]  # (3, 3, N): R_ik s_k
 
     x, y, z = means_c.unbind(-1)  # (C, N)
     in_depth = (z >= near_plane) & (z <= far_plane)
@@ -109,11 +123,14 @@ def project_gaussians(
     # The clamp only enters the Jacobian (off-screen Gaussians would otherwise blow up).
     tx = z_safe * torch.minimum(lim_x_pos, torch.maximum(-lim_x_neg, x * rz))
     ty = z_safe * torch.minimum(lim_y_pos, torch.maximum(-lim_y_neg, y * rz))
-    zero = torch.zeros_like(z)
-    jac = torch.stack(
-        (fx * rz, zero, -fx * tx * rz * rz, zero, fy * rz, -fy * ty * rz * rz), dim=-1
-    ).reshape(z.shape + (2, 3))  # (C, N, 2, 3)
-    cov2d = jac @ covars_c @ jac.transpose(-1, -2)  # (C, N, 2, 2)
+    # cov2d = J W (R S)(R S)^T W^T J^T with J the (2, 3) Jacobian (two zeros) and W the camera
+    # rotation: V = J W R S by broadcast products, then cov2d = V V^T, all component-major
+    # (..., N). Batched 3x3 matmuls (bmm) and ops over tiny trailing dimensions are slow on CPU.
+    ja = torch.stack((fx * rz, fy * rz), dim=1)  # (C, 2, N): J[0, 0], J[1, 1]
+    jb = torch.stack((-fx * tx * rz * rz, -fy * ty * rz * rz), dim=1)  # J[0, 2], J[1, 2]
+    jw = ja[:, :, None] * rot[:, :2, :, None] + jb[:, :, None] * rot[:, 2:3, :, None]  # (C,2,3,N)
+    v = (jw[:, :, :, None] * rs[None, None]).sum(dim=2)  # (C, 2, 3, N): (J W R S)[a, k]
+    cov2d = (v[:, :, None] * v[:, None]).sum(dim=3).permute(0, 3, 1, 2)  # (C, N, 2, 2)
     means2d = torch.stack((fx * x * rz + cx, fy * y * rz + cy), dim=-1)  # (C, N, 2)
 
     c00 = cov2d[..., 0, 0] + eps2d

@@ -19,32 +19,41 @@ and the pure-PyTorch ports are unmaintained. It reproduces gsplat 1.5.3's ``rast
   by depth, ties by Gaussian index (stable radix sort of ``tile | depth`` keys built in index order).
 
 Algorithm. Visible (camera, Gaussian) pairs are binned to 8x8-pixel tiles and each tile's list
-is sorted by depth. Tiles are sorted by list length and grouped into chunks of up to 64 tiles, a
-dense padded (tiles, K) index matrix each. A chunk is composited ``block_k`` (32) list entries
-at a time, so each step works on (64 tiles, 64 pixels, 32 entries) tensors that stay in cache,
-and a tile leaves the loop once all its pixels stopped or its list ended (gsplat's early exit:
-in dense scenes most of a list lies behind opaque content). In a step, ``log(o) - sigma`` at all
-(tile, pixel, entry) triples is one batched matmul of six pixel monomials (1, x, y, x^2, y^2, xy,
-relative to the tile centre to keep float32 cancellation small) with six per-Gaussian
-coefficients. The transmittance is a cumulative product along the list; because it only
-decreases, gsplat's stop rule blends exactly a prefix, and the blending weights are the
-decrements of the transmittance clamped from below at its value after that prefix. Every step is
-a handful of full-size passes without boolean masks (masks cost 5-20x an arithmetic pass on
-CPU). The colour is one more batched matmul. The backward pass is written by hand (a
-``torch.autograd.Function``) from the saved alphas and weights, visiting the steps back to
-front with a running sum for the "later Gaussians" term, and reduces the per-pixel gradient of
-sigma to six pixel moments (again one batched matmul), from which the gradients of the 2D mean,
-conic and opacity follow per Gaussian.
+is sorted by depth (one stable sort of int32 tile keys over pairs visited front to back). Tiles
+are sorted by list length and grouped into chunks of up to 64 tiles, a dense padded (tiles, K)
+index matrix each. A chunk is composited ``block_k`` (32) list entries at a time, so each step
+works on (64 tiles, 64 pixels, 32 entries) tensors that stay in cache, and a tile leaves the
+loop once all its pixels stopped or its list ended (gsplat's early exit: in dense scenes most of
+a list lies behind opaque content). In a step, ``(log(o) - sigma) / ln 2`` at all (tile, pixel,
+entry) triples is one batched matmul of six pixel monomials (1, x, y, x^2, y^2, xy, relative to
+the tile centre to keep float32 cancellation small) with six per-Gaussian coefficients (computed
+per chunk, a few blocks ahead), and alpha is its ``exp2`` (half the cost of ``exp`` on CPU). The
+transmittance is a cumulative product along the list (one in-place scan of a (tiles, pixels,
+entries + 1) buffer holding T before and after every entry); because it only decreases, gsplat's
+stop rule blends exactly a prefix, and the blending weights are the decrements of the
+transmittance clamped from below at its value after that prefix. Every step is a handful of
+full-size passes without boolean masks (masks cost 5-20x an arithmetic pass on CPU). The colour
+is one more batched matmul. The backward pass is written by hand (a ``torch.autograd.Function``)
+from the saved weights and clamped transmittances (their ratio is alpha / (1 - alpha) before the
+stop and 0 after it), visiting the steps back to front with a running sum for the "later
+Gaussians" term; per step it only reduces over pixels (six moments of the gradient of sigma and
+the colour gradient, two batched matmuls) into a per-chunk (tiles, entries) buffer, and the
+chain rule to the 2D mean, conic and opacity runs once per chunk. Per-op dispatch costs a few
+microseconds, comparable to a full-size pass, so the per-step op count is kept small.
 
-Memory: by default the forward keeps each step's alphas and weights (two (tiles, 64, block_k)
-tensors per step, only for tiles still compositing) for the backward; ``checkpoint=True`` keeps
-nothing per chunk and recomputes them chunk by chunk in the backward (activation checkpointing
-done by hand, because the backward is hand-written), capping memory at about one chunk.
+Memory: by default the forward keeps each step's weights and clamped transmittances (two
+(tiles, 64, block_k) tensors per step, only for tiles still compositing) for the backward;
+``checkpoint=True`` keeps nothing per chunk and recomputes them chunk by chunk in the backward
+(activation checkpointing done by hand, because the backward is hand-written), capping memory at
+about one chunk.
 
 Denormals: transmittances decay towards 0 and products of tiny floats go denormal, which is
 ~100x slower on x86. ``rasterize_pixels`` turns on ``torch.set_flush_denormal(True)`` for the
 duration of each forward and backward call and restores the previous setting afterwards (no
-global state change on import).
+global state change on import). That mode only reaches the calling thread, not torch's intra-op
+worker threads (with 2 threads, half of every large op ran with denormals: 20 s instead of
+0.13 s), so the kernels also avoid producing denormals: the base-2 logit is clamped at -100
+before ``exp2`` and the transmittance scan is floored past the stop (``_cumprod_no_denormals_``).
 """
 
 from __future__ import annotations
@@ -63,6 +72,11 @@ MAX_ALPHA = 0.999  # `min(0.999f, opac * __expf(-sigma))`
 ALPHA_THRESHOLD = 1.0 / 255.0  # `#define ALPHA_THRESHOLD (1.f / 255.f)`, skip below
 TRANSMITTANCE_THRESHOLD = 1e-4  # `if (next_T <= 1e-4f)`: stop, that Gaussian not blended
 LOG_MAX_ALPHA = math.log(MAX_ALPHA)
+# alpha is evaluated as exp2 of a base-2 logit: exp2 is ~2x cheaper than exp on CPU (AVX2).
+LOG2_E = 1.0 / math.log(2.0)
+LOG2_MAX_ALPHA = math.log2(MAX_ALPHA)
+# Binning uses int32 intersection arrays below this size (tests lower it to cover int64).
+_INT32_LIMIT = 2**31
 # log-opacity given to padding slots of a chunk: exp() of it is exactly 0 in float32/64.
 _PAD_LOG_OPACITY = -1.0e4
 
@@ -133,21 +147,29 @@ def bin_gaussians(
         pairs = torch.nonzero(flat_count, as_tuple=True)[0]  # flat pair ids with >= 1 tile
         # Visit pairs front to back (stable: ties keep index order), so that a stable sort by
         # tile afterwards leaves every tile's list depth-sorted, as gsplat's radix sort does.
-        order = torch.sort(depths.detach().reshape(-1)[pairs], stable=True).indices
-        pairs = pairs[order]
-        counts = flat_count[pairs]
+        order = torch.sort(depths.detach().reshape(-1).index_select(0, pairs), stable=True).indices
+        pairs = pairs.index_select(0, order)
+        counts = flat_count.index_select(0, pairs)
+        # Per-intersection arrays are int32 where the sizes allow (half the memory traffic).
         total = int(counts.sum())
-        owner = torch.repeat_interleave(torch.arange(len(pairs), device=device), counts)
-        starts = torch.cumsum(counts, 0) - counts
-        local = torch.arange(total, device=device) - starts[owner]
-        pair_of = pairs[owner]
-        nx_of = nx.reshape(-1)[pair_of]
-        tx = lo_x.reshape(-1)[pair_of] + local % nx_of.clamp(min=1)
-        ty = lo_y.reshape(-1)[pair_of] + local // nx_of.clamp(min=1)
-        cam = pair_of // N
-        tile_key = cam * n_tiles + ty * tiles_x + tx
+        small = max(total, C * n_tiles, len(pairs)) < _INT32_LIMIT
+        itype = torch.int32 if small else torch.int64
+        nx_p = nx.reshape(-1).index_select(0, pairs).to(itype)
+        # first tile of each pair's box; entry `local` of a box sits at row local // nx, column
+        # local % nx: tile = first + local + (local // nx) (tiles_x - nx)
+        cam = torch.div(pairs, max(N, 1), rounding_mode="floor")
+        first = (cam * n_tiles + lo_y.reshape(-1).index_select(0, pairs) * tiles_x
+                 + lo_x.reshape(-1).index_select(0, pairs)).to(itype)  # fmt: skip
+        counts = counts.to(itype)
+        owner = torch.repeat_interleave(torch.arange(len(pairs), device=device, dtype=itype),
+                                        counts, output_size=total)  # fmt: skip
+        starts = (torch.cumsum(counts, 0) - counts).to(itype)
+        local = torch.arange(total, device=device, dtype=itype) - starts.index_select(0, owner)
+        nx_o = nx_p.index_select(0, owner)
+        row = torch.div(local, nx_o.clamp(min=1), rounding_mode="floor")
+        tile_key = first.index_select(0, owner) + local + row * (tiles_x - nx_o)
         tile_key, perm = torch.sort(tile_key, stable=True)
-        flatten_ids = pair_of[perm]
+        flatten_ids = pairs.index_select(0, owner.index_select(0, perm))
         tile_counts = torch.bincount(tile_key, minlength=C * n_tiles)
         tile_offsets = torch.cumsum(tile_counts, 0) - tile_counts
     return TileBins(flatten_ids, tile_offsets, tile_counts, tiles_per_gauss, tiles_x, tiles_y)
@@ -190,7 +212,7 @@ def plan_chunks(
         valid = arange_k[None, :] < bins.tile_counts[t][:, None]
         ids = torch.where(
             valid,
-            bins.flatten_ids[slot.clamp(max=len(bins.flatten_ids) - 1)],
+            _rows(bins.flatten_ids, slot.clamp(max=len(bins.flatten_ids) - 1)),
             torch.full_like(slot, n_pairs),
         )
         local = t % n_tiles_img
@@ -235,32 +257,16 @@ def param_table(means2d: Tensor, conics: Tensor, opacities: Tensor) -> Tensor:
     return torch.cat((rows, dummy), dim=0)
 
 
-def block_logit(prm: Tensor, origin: Tensor, mono: Tensor) -> Tensor:
-    """``log(o) - sigma`` for every (tile, pixel, slot): (T, P, B).
-
-    prm (T, B, 7) gathered rows, origin (T, 2) tile centres, mono (P, 6) pixel monomials.
-    sigma = 0.5 a (ux-x)^2 + b (ux-x)(uy-y) + 0.5 c (uy-y)^2 with (ux, uy) the mean and (x, y)
-    the pixel, both relative to the tile centre, expanded as a polynomial in (x, y): one matmul.
-    """
-    ux = prm[..., 0] - origin[:, None, 0]
-    uy = prm[..., 1] - origin[:, None, 1]
-    a, b, c, log_o = prm[..., 2], prm[..., 3], prm[..., 4], prm[..., 5]
-    sig0 = 0.5 * a * ux * ux + b * ux * uy + 0.5 * c * uy * uy
-    coef = torch.stack(
-        (log_o - sig0, a * ux + b * uy, b * ux + c * uy, -0.5 * a, -0.5 * c, -b), dim=-2
-    )  # (T, 6, B)
-    return torch.matmul(mono, coef)
-
-
 @dataclass
 class Block:
     """What the backward needs of one (tiles, slots) block of the forward."""
 
     tiles: Tensor  # (T,) flat tile ids (the tiles of the chunk still compositing)
-    ids: Tensor  # (T, B) flat pair ids
-    origin: Tensor  # (T, 2)
-    alpha: Tensor | None  # (T, P, B) alpha of blended entries, 0 for skipped / after the stop
-    weight: Tensor | None  # (T, P, B) blending weight alpha * T
+    rows: Tensor | None  # (T,) their rows in the chunk; None: all rows of the chunk
+    k0: int  # first list slot of the block
+    weight: Tensor  # (T, P, B) blending weight alpha * T; 0 for skipped / after the stop
+    t_after: Tensor  # (T, P, B) transmittance after each entry, clamped from below at its
+    # value after the stop (> 0): weight / t_after = alpha / (1 - alpha) while blending, 0 after
     live: Tensor | None  # (T, P, B) bool, alpha below the 0.999 clamp; None: no clamping possible
 
 
@@ -280,60 +286,128 @@ def forward_chunk(
     t_final (tiles, P) receives final transmittances (both may be None: recompute for the
     backward). A tile leaves the loop when all its pixels stopped or its list is exhausted,
     which is gsplat's early exit. Returns the blocks' records when ``keep``.
+
+    Every op here runs once per block on (tiles, pixels, entries) tensors or is cheap and
+    per chunk: the per-op dispatch cost (microseconds) matters as much as the arithmetic.
     """
     tiles, ids, origin, counts = chunk.tiles, chunk.ids, chunk.origin, chunk.counts
     n, P = len(tiles), mono.shape[0]
+    dtype = mono.dtype
     t_run = mono.new_ones((n, P))  # transmittance so far; 0 once a pixel stopped
     t_fin = mono.new_ones((n, P))  # transmittance after the last blended entry
     skip_below = torch.nextafter(  # threshold() keeps x > th; this keeps alpha >= 1/255
-        torch.tensor(ALPHA_THRESHOLD, dtype=mono.dtype), torch.tensor(0.0, dtype=mono.dtype)
+        torch.tensor(ALPHA_THRESHOLD, dtype=dtype), torch.tensor(0.0, dtype=dtype)
     ).item()
+    one = mono.new_ones(())
+    K = ids.shape[1]
+    # Per-Gaussian coefficients of the chunk, computed a few blocks at a time (lists are much
+    # longer than the part composited before the tiles saturate); sliced per block.
+    seg = 4 * block_k
+    coef = _chunk_coefs(prm, ids[:, :seg], origin)
+    # Opacities >= 0.999 can hit the alpha clamp: only blocks holding one record the clamp mask.
+    clamp_upto = (_rows(prm[:, 6], ids) >= MAX_ALPHA).any(dim=0).cumsum(dim=0).tolist()
+    # colours (T, D, K') of the first K' slots, extended with the coefficients
+    col_t = _rows(colors, ids[:, :seg]).transpose(1, 2) if out is not None else None
+    rows: Tensor | None = None
     records: list[Block] = []
-    for k0 in range(0, ids.shape[1], block_k):
+    for k0 in range(0, K, block_k):
         if k0 > 0:
             alive = (t_run.amax(dim=1) > 0) & (counts > k0)
             if not bool(alive.all()):
                 if t_final is not None:
-                    t_final[tiles] = t_fin
+                    t_final.index_copy_(0, tiles, t_fin)
                 sel = torch.nonzero(alive, as_tuple=True)[0]
                 if len(sel) == 0:
                     break
                 tiles, ids, origin, counts = tiles[sel], ids[sel], origin[sel], counts[sel]
-                t_run, t_fin = t_run[sel], t_fin[sel]
-        ids_b = ids[:, k0 : k0 + block_k]
-        prm_b = _rows(prm, ids_b)  # (T, B, 7)
-        logit = block_logit(prm_b, origin, mono)
+                t_run, t_fin, coef = t_run[sel], t_fin[sel], coef[sel]
+                rows = sel if rows is None else rows[sel]
+                if col_t is not None:
+                    col_t = col_t[sel]
+            if k0 % seg == 0:
+                ids_s = ids[:, k0 : k0 + seg]
+                coef = torch.cat((coef, _chunk_coefs(prm, ids_s, origin)), -1)
+                if col_t is not None:
+                    col_t = torch.cat((col_t, _rows(colors, ids_s).transpose(1, 2)), -1)
+        k1 = min(K, k0 + block_k)
+        B = k1 - k0
+        logit = torch.matmul(mono, coef[:, :, k0:k1])  # log2(o) - sigma / ln 2, (T, P, B)
+        clampable = clamp_upto[k1 - 1] > (clamp_upto[k0 - 1] if k0 > 0 else 0)
+        live = logit < LOG2_MAX_ALPHA if clampable else None
         # alpha = min(0.999, o exp(-sigma)); clamping the logit first keeps it to one pass.
         # Clamped alphas get no gradient; only Gaussians with o >= 0.999 can clamp.
-        live = logit < LOG_MAX_ALPHA if bool((prm_b[..., 6] >= MAX_ALPHA).any()) else None
-        alpha = logit.clamp_(max=LOG_MAX_ALPHA).exp_()
+        # The lower clamp keeps exp2 out of denormals (2^-100 is skipped as < 1/255 anyway).
+        alpha = torch.exp2(logit.clamp_(min=-100.0, max=LOG2_MAX_ALPHA), out=logit)
         F.threshold_(alpha, skip_below, 0.0)  # skip alpha < 1/255
-        one_minus = torch.rsub(alpha, 1.0)
-        one_minus[..., 0] *= t_run
-        t_incl = torch.cumprod(one_minus, dim=-1)  # T after each entry, (T, P, B)
-        t_ext = torch.cat((t_run[..., None], t_incl), dim=-1)  # T before each entry, + after
+        # t_ext[..., k]: T before entry k; t_ext[..., k + 1]: T after it. One buffer, one scan.
+        t_ext = alpha.new_empty((len(tiles), P, B + 1))
+        t_ext[..., 0] = t_run
+        torch.sub(one, alpha, out=t_ext[..., 1:])
+        del alpha, logit
+        _cumprod_no_denormals_(t_ext)
         # Stop rule: an entry is blended only while T after it stays > 1e-4; T only decreases,
-        # so the blended entries are a prefix and T after the last one is the smallest T > 1e-4.
-        running = t_run > 0
-        t_stop = F.threshold(t_ext, TRANSMITTANCE_THRESHOLD, math.inf).amin(dim=-1)
-        t_stop = torch.where(running, t_stop, torch.zeros_like(t_stop))
-        t_fin = torch.where(running, t_stop, t_fin)
-        t_run = F.threshold(t_incl[..., -1], TRANSMITTANCE_THRESHOLD, 0.0)
+        # so the blended entries are a prefix and T after the last one is the smallest T > 1e-4
+        # (<= 1: the min over an empty set, pixels stopped earlier, becomes 1: nothing blended).
+        t_stop = F.threshold(t_ext, TRANSMITTANCE_THRESHOLD, math.inf).amin(dim=-1).clamp_(max=1)
+        t_fin = torch.minimum(t_fin, t_stop)
+        t_run = F.threshold(t_ext[..., -1], TRANSMITTANCE_THRESHOLD, 0.0)
         # T clamped at the stop value: its decrements are alpha_k T_k before the stop, 0 after.
-        u = torch.maximum(t_ext, t_stop[..., None])
+        u = torch.maximum(t_ext, t_stop[..., None], out=t_ext)
         weight = u[..., :-1] - u[..., 1:]
-        if out is not None:
-            col_t = _rows(colors, ids_b).transpose(1, 2)  # (T, D, B)
-            out.index_add_(0, tiles, torch.bmm(col_t, weight.transpose(1, 2)))
+        if col_t is not None:
+            out.index_add_(0, tiles, torch.bmm(col_t[:, :, k0:k1], weight.transpose(1, 2)))
         if keep:
-            alpha_b = weight / u[..., :-1].clamp(min=torch.finfo(u.dtype).tiny)
-            records.append(Block(tiles, ids_b, origin, alpha_b, weight, live))
+            records.append(Block(tiles, rows, k0, weight, u[..., 1:], live))
     if t_final is not None:
-        t_final[tiles] = t_fin
+        t_final.index_copy_(0, tiles, t_fin)
     return records
 
 
+# Scan length and floor of _cumprod_no_denormals_: factors 1 - alpha >= 1e-3, so 8 of them
+# from >= 1e-12 stay >= 1e-36, a normal float32.
+_SCAN = 8
+_SCAN_FLOOR = 1e-12
+
+
+def _cumprod_no_denormals_(t: Tensor) -> None:
+    """In-place cumulative product along the last axis of transmittances without denormals.
+
+    Denormal arithmetic is ~100x slower on x86, and ``set_flush_denormal`` only reaches the
+    calling thread, not the intra-op worker threads. Past the stop (T <= 1e-4) the products keep
+    shrinking towards underflow, so the scan runs in pieces of ``_SCAN`` entries and the running
+    value is floored at ``_SCAN_FLOOR`` between pieces: a value below the floor is past the stop,
+    where only "<= 1e-4" matters, so no result changes.
+    """
+    n = t.shape[-1]
+    if n <= _SCAN + 1:
+        t.cumprod_(dim=-1)
+        return
+    for k in range(0, n - 1, _SCAN):
+        if k > 0:
+            t[..., k].clamp_(min=_SCAN_FLOOR)
+        t[..., k : k + _SCAN + 1].cumprod_(dim=-1)
+
+
+def _chunk_coefs(prm: Tensor, ids: Tensor, origin: Tensor) -> Tensor:
+    """(T, 6, K) coefficients of ``(log(o) - sigma) / ln 2`` in the pixel monomials
+    (1, x, y, x^2, y^2, x y) relative to the tile centre.
+
+    prm (CN + 1, 7) table, ids (T, K) pair ids, origin (T, 2) tile centres.
+    sigma = 0.5 a (ux-x)^2 + b (ux-x)(uy-y) + 0.5 c (uy-y)^2 with (ux, uy) the mean and (x, y)
+    the pixel, both relative to the tile centre, expanded as a polynomial in (x, y).
+    """
+    prm_c = _rows(prm, ids)  # (T, K, 7)
+    ux = prm_c[..., 0] - origin[:, None, 0]
+    uy = prm_c[..., 1] - origin[:, None, 1]
+    a, b, c, log_o = prm_c[..., 2], prm_c[..., 3], prm_c[..., 4], prm_c[..., 5]
+    sig0 = 0.5 * a * ux * ux + b * ux * uy + 0.5 * c * uy * uy
+    return torch.stack(
+        (log_o - sig0, a * ux + b * uy, b * ux + c * uy, -0.5 * a, -0.5 * c, -b), dim=-2
+    ).mul_(LOG2_E)
+
+
 def backward_blocks(
+    chunk: Chunk,
     blocks: list[Block],
     prm: Tensor,
     colors: Tensor,
@@ -353,45 +427,61 @@ def backward_blocks(
     With q_k = <dL/dC, c_k>, w_k = alpha_k T_k and later_k = sum_{j>k} q_j w_j + T_N (<dL/dC, bg>
     - dL/dalpha_out): dL/dalpha_k = T_k q_k - later_k / (1 - alpha_k), and as
     alpha = o exp(-sigma): dL/dsigma_k = -alpha_k dL/dalpha_k = later_k r_k - q_k w_k with
-    r = alpha / (1 - alpha).
+    r = alpha / (1 - alpha) = w_k / T_{k+1} (0 after the stop, where w_k = 0).
+    Per block only the pixel sums (six moments of dL/dsigma, the colour gradient) are formed,
+    into a (tiles, slots) buffer of the chunk; the per-Gaussian chain rule runs once per chunk.
     """
+    if not blocks:
+        return
+    D = colors.shape[1]
+    n_used = max(blk.k0 + blk.weight.shape[-1] for blk in blocks)
+    ids = chunk.ids[:, :n_used]
+    col_t = _rows(colors, ids).transpose(1, 2)  # (T0, D, K)
+    acc = grads.new_zeros((ids.shape[0], 6 + D, n_used))  # pixel sums per (tile, slot)
+    mono_t = mono.transpose(0, 1)
     for blk in reversed(blocks):
         tiles = blk.tiles
-        prm_b = _rows(prm, blk.ids)  # (T, B, 7)
-        col_b = _rows(colors, blk.ids)  # (T, B, D)
-        qw = torch.bmm(grad_px.index_select(0, tiles), col_b.transpose(1, 2).contiguous())
+        k0, k1 = blk.k0, blk.k0 + blk.weight.shape[-1]
+        col_b = col_t[:, :, k0:k1] if blk.rows is None else col_t[blk.rows, :, k0:k1]
+        qw = torch.bmm(grad_px.index_select(0, tiles), col_b)  # (T, P, B)
         qw.mul_(blk.weight)
         cum = torch.cumsum(qw, dim=-1)
-        total = cum[..., -1]
-        base = later.index_select(0, tiles) + total
+        base = later.index_select(0, tiles) + cum[..., -1]
         later.index_copy_(0, tiles, base)
         lat = torch.rsub(cum, base[..., None])  # sum over entries after k, (T, P, B)
-        r = blk.alpha / torch.rsub(blk.alpha, 1.0)
-        d_sigma = lat.mul_(r).sub_(qw)
+        d_sigma = lat.mul_(blk.weight).div_(blk.t_after).sub_(qw)
         if blk.live is not None:
             d_sigma.mul_(blk.live)
-        m0, m1, m2, m3, m4, m5 = torch.matmul(mono.transpose(0, 1), d_sigma).unbind(dim=-2)
-        ux = prm_b[..., 0] - blk.origin[:, None, 0]
-        uy = prm_b[..., 1] - blk.origin[:, None, 1]
-        a, b, c, o = prm_b[..., 2], prm_b[..., 3], prm_b[..., 4], prm_b[..., 6]
-        # sums over pixels of dx^k dy^l dL/dsigma, with dx = ux - x, dy = uy - y
-        sdx = ux * m0 - m1
-        sdy = uy * m0 - m2
-        sdxx = ux * ux * m0 - 2 * ux * m1 + m3
-        sdyy = uy * uy * m0 - 2 * uy * m2 + m4
-        sdxy = ux * uy * m0 - ux * m2 - uy * m1 + m5
-        d_col = torch.bmm(grad_t.index_select(0, tiles), blk.weight).transpose(1, 2)  # (T, B, D)
-        rows = torch.cat(
-            (
-                torch.stack(
-                    (a * sdx + b * sdy, b * sdx + c * sdy, 0.5 * sdxx, sdxy, 0.5 * sdyy, -m0 / o),
-                    dim=-1,
-                ),
-                d_col,
+        sums = torch.cat(
+            (torch.matmul(mono_t, d_sigma), torch.bmm(grad_t.index_select(0, tiles), blk.weight)),
+            dim=1,
+        )  # (T, 6 + D, B)
+        if blk.rows is None:
+            acc[:, :, k0:k1] = sums
+        else:
+            acc[:, :, k0:k1].index_copy_(0, blk.rows, sums)
+    prm_c = _rows(prm, ids)  # (T0, K, 7)
+    ux = prm_c[..., 0] - chunk.origin[:, None, 0]
+    uy = prm_c[..., 1] - chunk.origin[:, None, 1]
+    a, b, c, o = prm_c[..., 2], prm_c[..., 3], prm_c[..., 4], prm_c[..., 6]
+    m0, m1, m2, m3, m4, m5 = acc[:, :6].unbind(dim=1)
+    # sums over pixels of dx^k dy^l dL/dsigma, with dx = ux - x, dy = uy - y
+    sdx = ux * m0 - m1
+    sdy = uy * m0 - m2
+    sdxx = ux * ux * m0 - 2 * ux * m1 + m3
+    sdyy = uy * uy * m0 - 2 * uy * m2 + m4
+    sdxy = ux * uy * m0 - ux * m2 - uy * m1 + m5
+    g = torch.cat(
+        (
+            torch.stack(
+                (a * sdx + b * sdy, b * sdx + c * sdy, 0.5 * sdxx, sdxy, 0.5 * sdyy, -m0 / o),
+                dim=-1,
             ),
-            dim=-1,
-        )
-        grads.index_add_(0, blk.ids.reshape(-1), rows.reshape(-1, rows.shape[-1]))
+            acc[:, 6:].transpose(1, 2),
+        ),
+        dim=-1,
+    )  # (T0, K, 6 + D)
+    grads.index_add_(0, ids.reshape(-1), g.reshape(-1, 6 + D))
 
 
 # --------------------------------------------------------------------------------------------
@@ -452,7 +542,7 @@ class _RasterizePixels(torch.autograd.Function):
                 if plan.checkpoint:
                     blocks = forward_chunk(chunk, prm, col, plan.mono, plan.block_k,
                                            None, None, keep=True)  # fmt: skip
-                backward_blocks(blocks, prm, col, plan.mono, grad_px, grad_t, later, grads)
+                backward_blocks(chunk, blocks, prm, col, plan.mono, grad_px, grad_t, later, grads)
             g_bg = backgrounds.new_zeros(backgrounds.shape).index_add_(
                 0, plan.cam_of_tile, (grad_t * t_final[:, None, :]).sum(dim=-1)
             )
