@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "seg-train": ("radar4dgs.segment.command", "SegTrainCommand"),
     "prepare": ("radar4dgs.prepare", "PrepareCommand"),
     "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand"),
+    "fit-motion": ("radar4dgs.motion.command", "FitMotionCommand"),
 }
 
 

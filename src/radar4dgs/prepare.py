@@ -25,6 +25,7 @@ from radar4dgs.data.scene import Scene, SceneError, read_scene
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.depth.pipeline import write_depth
 from radar4dgs.depth.sources import DepthModelError
+from radar4dgs.motion.flow import FlowConfig, run_flow_stage
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.process import prepare_radar
 from radar4dgs.segment.infer import SegInferConfig, prepare_masks
@@ -42,10 +43,12 @@ class PrepareConfig:
     depth: DepthConfig = field(default_factory=DepthConfig)
     # Stage "masks": radar-camera dynamic segmentation (the shipped network by default).
     masks: SegInferConfig = field(default_factory=SegInferConfig)
+    # Stage "flow": optical flow between training frames lifted to 3D scene flow on dynamic pixels.
+    flow: FlowConfig = field(default_factory=FlowConfig)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {})),
-               "masks": dict(SegInferConfig.PRESETS.get(name, {}))}
+               "masks": dict(SegInferConfig.PRESETS.get(name, {})), "flow": dict(FlowConfig.PRESETS.get(name, {}))}
         for name in ("tiny", "small", "paper")}
 
 
@@ -81,6 +84,7 @@ STAGES: tuple[Stage, ...] = (
     Stage("radar", lambda c: c.radar, _run_radar),
     Stage("depth", lambda c: c.depth, _run_depth),
     Stage("masks", lambda c: c.masks, _run_masks),
+    Stage("flow", lambda c: c.flow, run_flow_stage),
 )
 
 
@@ -139,7 +143,7 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
 
 @dataclass
 class PrepareCommand:
-    """Run the front end on a scene: radar ego-motion and dynamic points, metric depth, sky and dynamic masks."""
+    """Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, scene flow."""
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]

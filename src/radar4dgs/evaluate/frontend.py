@@ -141,9 +141,15 @@ def evaluate_masks(scene: Scene, prepared_dir: Path) -> dict:
     return segmentation_frontend_metrics(scene, prepared_dir)
 
 
+def evaluate_flow(scene: Scene, prepared_dir: Path) -> dict:
+    from radar4dgs.motion.flow import motion_frontend_metrics
+
+    return motion_frontend_metrics(scene, prepared_dir)
+
+
 # Section name (= prepared stage folder) -> function(scene, prepared_dir) -> dict.
 SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth,
-                                                     "masks": evaluate_masks}
+                                                     "masks": evaluate_masks, "flow": evaluate_flow}
 
 
 def format_report(report: dict[str, Any]) -> str:

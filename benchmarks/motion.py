@@ -1,0 +1,144 @@
+"""Benchmark of the motion stage (issue 7): field invertibility, DIS speed, and the standalone fit's
+dynamic scene-flow error on synthetic scenes for flow-only, radar-only and both.
+
+    python benchmarks/motion.py [--seeds 1 2 3 4 5] [--preset small] [--work /tmp/radar4dgs-motion-bench] [--oracle]
+
+Prints a table and writes benchmarks/results/motion.json (rewritten after every seed, so an
+interrupted run keeps the seeds it finished). The fit uses only prepared data: the radar front
+end, radar-scaled depth and the segmentation network's masks (`radar4dgs prepare`). With --oracle,
+depth and dynamic masks come from the scene's gt/ instead (an upper bound; written to
+motion-oracle.json unless --out is given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from radar4dgs.config import preset
+from radar4dgs.data.atomic import atomic_write_json
+from radar4dgs.data.scene import read_scene
+from radar4dgs.motion.field import DeformationField, FieldConfig, randomize_
+from radar4dgs.motion.fit import MotionConfig, run_fit
+from radar4dgs.motion.flow import motion_frontend_metrics, prepare_flow, time_dis
+
+RESULTS = Path(__file__).parent / "results" / "motion.json"
+MODES = {"flow_only": (True, False), "radar_only": (False, True), "both": (True, True)}
+
+
+def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
+    """Max |D^-1(D(x)) - x| over random x in [-1, 1]^3 (identity normalisation), random t, random
+    weights (randomize_: Kaiming hidden layers, N(0, 0.1^2) last layers), per preset and dtype."""
+    out = {}
+    for name in ("tiny", "small", "paper"):
+        for dtype in (torch.float32, torch.float64):
+            worst, moved = 0.0, []
+            for seed in range(seeds):
+                field = DeformationField(preset(FieldConfig, name))
+                randomize_(field, 0.1, torch.Generator().manual_seed(seed))
+                field = field.to(dtype)
+                generator = torch.Generator().manual_seed(100 + seed)
+                x = (torch.rand(points, 3, generator=generator, dtype=torch.float64) * 2 - 1).to(dtype)
+                t = torch.rand(points, generator=generator, dtype=torch.float64).to(dtype)
+                with torch.no_grad():
+                    y = field(x, t)
+                    worst = max(worst, float((field.inverse(y, t) - x).abs().max()))
+                    moved.append(float((y - x).norm(dim=1).mean()))
+            out[f"{name}_{str(dtype).split('.')[-1]}"] = {"max_error": worst, "mean_displacement": float(np.mean(moved))}
+    return out
+
+
+def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool) -> tuple[Path, Path, dict]:
+    """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
+    the radar stage runs and depth and masks come from the scene's gt/ (an upper bound)."""
+    from radar4dgs.data.synth import SynthConfig, synthesize
+    from radar4dgs.prepare import PrepareConfig, run_prepare
+
+    scene_dir = work / f"{preset_name}-s{seed}"
+    if not (scene_dir / "scene.json").is_file():
+        synthesize(preset(SynthConfig, preset_name, seed=seed), scene_dir, overwrite=True, progress=False)
+    prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
+    stages = ("radar",) if oracle else ("radar", "depth", "masks")
+    run_prepare(scene_dir, prepared, preset(PrepareConfig, preset_name), only=stages, progress=False)
+    source = "oracle" if oracle else "prepared"
+    info = {"radar_source": "prepared", "depth_source": source, "mask_source": source}
+    return scene_dir, prepared, info
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--preset", default="small")
+    parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-motion-bench"))
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--oracle", action="store_true", help="gt depth and masks instead of the prepared ones")
+    args = parser.parse_args()
+    if args.out is None:
+        args.out = RESULTS.with_name("motion-oracle.json") if args.oracle else RESULTS
+
+    report: dict = {"command": "python benchmarks/motion.py " + " ".join(
+        ["--seeds", *map(str, args.seeds), "--preset", args.preset] + (["--oracle"] if args.oracle else [])),
+        "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks)"}
+    report["roundtrip"] = roundtrip_errors()
+    report["dis_ms_per_320x180_pair"] = {p: 1000 * time_dis(preset=p) for p in ("fast", "medium")}
+    print("round trip (max |D^-1(D(x)) - x|, random weights, 100k points x 5 seeds):")
+    for key, value in report["roundtrip"].items():
+        print(f"  {key:<16} {value['max_error']:.2e}   (mean displacement {value['mean_displacement']:.2f})")
+    print("DIS ms per 320x180 pair: " + ", ".join(f"{k} {v:.1f}" for k, v in report["dis_ms_per_320x180_pair"].items()))
+
+    report["seeds"] = {}
+    for seed in args.seeds:
+        started = time.perf_counter()
+        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle)
+        scene = read_scene(scene_dir)
+        config = preset(MotionConfig, args.preset, flow={"depth_source": info["depth_source"],
+                                                         "mask_source": info["mask_source"]},
+                        fit={"radar_source": info["radar_source"]})
+        flow_summary = prepare_flow(scene, prepared, config.flow)
+        entry = {**info, "flow_seconds_per_call": flow_summary["flow_seconds_per_call"],
+                 "frontend": motion_frontend_metrics(scene, prepared)}
+        for mode, (use_flow, use_radar) in MODES.items():
+            _, result = run_fit(scene, prepared, config, use_flow, use_radar)
+            entry[mode] = {"epe": result["sceneflow"]["epe"],
+                           "epe_train_pairs": result["sceneflow"]["epe_train_pairs"],
+                           "epe_held_out_pairs": result["sceneflow"]["epe_held_out_pairs"],
+                           "fit_seconds": result["fit_seconds"],
+                           "roundtrip_max_m": result["sceneflow"]["roundtrip_max"],
+                           "radar_matched": result.get("radar_matched"),
+                           "flow_pairs": result.get("flow_pairs")}
+            entry["zero_motion_epe"] = result["sceneflow"]["zero_motion_epe"]
+            print(f"seed {seed} {mode:<10} EPE {entry[mode]['epe']:.3f} m  fit {entry[mode]['fit_seconds']:.0f} s", flush=True)
+        entry["seconds"] = time.perf_counter() - started
+        report["seeds"][str(seed)] = entry
+        summarize(report)
+        atomic_write_json(args.out, report)
+    print(json.dumps(report["summary"], indent=2))
+    print(f"wrote {args.out}")
+
+
+def summarize(report: dict) -> None:
+    seeds = list(report["seeds"].values())
+    summary = {"seeds_done": len(seeds)}
+    for mode in MODES:
+        values = [s[mode]["epe"] for s in seeds if s[mode]["epe"] is not None]
+        summary[f"{mode}_epe_mean"] = float(np.mean(values)) if values else None
+        summary[f"{mode}_fit_seconds_max"] = max(s[mode]["fit_seconds"] for s in seeds)
+    summary["zero_motion_epe_mean"] = float(np.mean([s["zero_motion_epe"] for s in seeds]))
+    summary["flow2d_epe_dynamic_mean"] = float(np.mean([s["frontend"]["flow2d_epe_dynamic"] for s in seeds]))
+    summary["sceneflow_epe_dynamic_mean"] = float(np.mean([s["frontend"]["sceneflow_epe_dynamic"] for s in seeds]))
+    both = summary["both_epe_mean"]
+    summary["target_both_le_0.15"] = both is not None and both <= 0.15
+    summary["target_both_beats_each"] = both is not None and all(
+        both < summary[f"{m}_epe_mean"] for m in ("flow_only", "radar_only"))
+    summary["both_beats_each_per_seed"] = [s["both"]["epe"] < min(s["flow_only"]["epe"], s["radar_only"]["epe"])
+                                           for s in seeds]
+    report["summary"] = summary
+
+
+if __name__ == "__main__":
+    main()

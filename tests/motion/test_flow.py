@@ -1,0 +1,154 @@
+"""Optical flow, consistency, bilinear sampling and lifting to 3D, against closed forms."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from radar4dgs.motion.flow import (backproject, bilinear_sample, build_raft, consistency_mask, dis_flow,
+                                   lift_flow, load_raft, raft_flow, reject_flow_outliers, sample_depth)
+
+K = np.array([[100.0, 0.0, 39.5], [0.0, 100.0, 29.5], [0.0, 0.0, 1.0]])
+H, W = 60, 80
+
+
+def texture(height: int, width: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur((rng.random((height, width)) * 255).astype(np.uint8), (0, 0), 1.5)
+
+
+def test_dis_recovers_a_known_shift():
+    big = texture(220, 360)
+    a = np.ascontiguousarray(big[20:200, 20:340])
+    b = np.ascontiguousarray(big[18:198, 17:337])  # content moves by (+3, +2) pixels
+    for preset in ("fast", "medium"):
+        flow = dis_flow(a, b, preset)
+        assert flow.shape == (180, 320, 2) and flow.dtype == np.float32
+        interior = flow[20:-20, 20:-20].reshape(-1, 2)
+        assert np.median(interior, axis=0) == pytest.approx([3.0, 2.0], abs=0.1)
+    rgb = np.repeat(a[..., None], 3, axis=2)
+    assert np.allclose(dis_flow(rgb, np.repeat(b[..., None], 3, axis=2)), dis_flow(a, b))
+
+
+def test_bilinear_sample_is_exact_on_linear_functions_and_flags_outside():
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    image = 2 * u + 3 * v + 1
+    xy = np.array([[0.5, 0.5], [10.25, 20.75], [W - 1.0, H - 1.0], [-0.1, 3.0], [3.0, H - 0.5]])
+    values, inside = bilinear_sample(image, xy)
+    assert inside.tolist() == [True, True, True, False, False]
+    assert values[:3] == pytest.approx(2 * xy[:3, 0] + 3 * xy[:3, 1] + 1)
+    stacked, _ = bilinear_sample(np.stack([image, -image], axis=-1), xy[:2])
+    assert stacked[:, 1] == pytest.approx(-stacked[:, 0])
+
+
+def test_sample_depth_refuses_edges_and_sky():
+    depth = np.full((H, W), 10.0)
+    depth[:, 40:] = 30.0  # a depth edge between columns 39 and 40
+    depth[0, 0] = np.inf  # sky
+    z, valid = sample_depth(depth, np.array([[20.5, 10.0], [39.5, 10.0], [0.5, 0.5], [60.0, 30.0]]), 0.1)
+    assert valid.tolist() == [True, False, False, True]
+    assert z[0] == pytest.approx(10.0) and z[3] == pytest.approx(30.0)
+
+
+def test_consistency_mask_constant_flows():
+    forward = np.zeros((H, W, 2), np.float32)
+    forward[..., 0] = 3.0
+    backward = -forward
+    mask = consistency_mask(forward, backward)
+    assert mask[:, : W - 3].all() and not mask[:, W - 3:].any()  # the last columns leave the image
+    wrong = backward.copy()
+    wrong[..., 1] = 2.0  # |f_fw + f_bw|^2 = 4 > 0.01 * (9 + 13) + 0.5
+    assert not consistency_mask(forward, wrong).any()
+    slightly = backward + 0.5  # residual 0.5 px^2 ... (0.5^2 + 0.5^2) = 0.5 < 0.01 * (9 + 6.5) + 0.5
+    assert consistency_mask(forward, slightly)[:, : W - 3].all()
+
+
+def plane_scene(motion=(1.0, 0.0, 0.0), camera_step=(0.0, 0.0, 0.5), z=10.0):
+    """A fronto-parallel plane at depth z moving by ``motion`` (world = camera i frame) while the
+    camera moves forward by ``camera_step``; exact flow and depths by formula."""
+    world_to_cam_i = np.eye(4)
+    world_to_cam_j = np.eye(4)
+    world_to_cam_j[:3, 3] = -np.asarray(camera_step)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    X, Y = (u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z
+    Xj, Yj, Zj = X + motion[0] - camera_step[0], Y + motion[1] - camera_step[1], z + motion[2] - camera_step[2]
+    flow = np.stack([K[0, 0] * Xj / Zj + K[0, 2] - u, K[1, 1] * Yj / Zj + K[1, 2] - v], axis=-1)
+    depth_i = np.full((H, W), z)
+    depth_j = np.full((H, W), Zj)
+    return flow.astype(np.float32), depth_i, depth_j, world_to_cam_i, world_to_cam_j
+
+
+def test_lift_flow_recovers_a_known_translation_with_a_moving_camera():
+    motion = np.array([1.0, -0.2, 0.3])
+    flow, depth_i, depth_j, w2c_i, w2c_j = plane_scene(motion)
+    valid = np.ones((H, W), bool)
+    valid[:5] = False
+    points_i, points_j, pixels = lift_flow(flow, depth_i, depth_j, K, w2c_i, w2c_j, valid)
+    assert len(points_i) > 0.5 * H * W
+    assert (pixels[:, 1] >= 5).all()
+    assert np.allclose(points_j - points_i, motion, atol=1e-4)
+    # points_i are the back-projections of the kept pixels
+    assert np.allclose(points_i, backproject(pixels, np.full(len(pixels), 10.0), K, w2c_i))
+    # a target mask that excludes the right half of frame j drops matches landing there
+    target = np.ones((H, W), bool)
+    target[:, W // 2:] = False
+    _, _, kept = lift_flow(flow, depth_i, depth_j, K, w2c_i, w2c_j, valid, target_mask=target)
+    assert (kept[:, 0] + flow[kept[:, 1].astype(int), kept[:, 0].astype(int), 0] <= W // 2 - 1).all()
+
+
+def test_lift_flow_drops_invalid_depth_and_shape_errors():
+    flow, depth_i, depth_j, w2c_i, w2c_j = plane_scene()
+    depth_i[:, :10] = np.inf
+    points_i, _, pixels = lift_flow(flow, depth_i, depth_j, K, w2c_i, w2c_j, np.ones((H, W), bool))
+    assert (pixels[:, 0] >= 10).all() and np.isfinite(points_i).all()
+    with pytest.raises(ValueError, match="shapes disagree"):
+        lift_flow(flow[:-1], depth_i, depth_j, K, w2c_i, w2c_j, np.ones((H, W), bool))
+
+
+def test_reject_flow_outliers_per_component():
+    mask = np.zeros((H, W), bool)
+    mask[10:20, 10:20] = True  # object A
+    mask[40:50, 50:60] = True  # object B
+    rows, cols = np.nonzero(mask)
+    pixels = np.stack([cols, rows], 1).astype(np.float64)
+    points_i = np.zeros((len(pixels), 3))
+    points_j = np.where(pixels[:, :1] < 30, [1.0, 0.0, 0.0], [0.0, 2.0, 0.0])  # A moves x, B moves y
+    points_j = points_j + np.random.default_rng(0).normal(0, 0.01, points_j.shape)
+    points_j[0] += [5.0, 0.0, 0.0]  # one gross outlier in A
+    keep = reject_flow_outliers(points_i, points_j, pixels, mask)
+    assert not keep[0] and keep[1:].mean() > 0.97
+
+
+@pytest.fixture(scope="module")
+def raft_checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    network = build_raft("small")
+    path = tmp_path_factory.mktemp("raft") / "raft_small.pth"
+    torch.save(network.state_dict(), path)
+    return path, network
+
+
+def test_raft_checkpoint_loads_and_matches_the_network(raft_checkpoint, tmp_path):
+    path, network = raft_checkpoint
+    loaded = load_raft(path, "small")
+    for (name, a), b in zip(network.state_dict().items(), loaded.state_dict().values()):
+        assert torch.equal(a, b), name
+    a = np.repeat(texture(36, 44)[..., None], 3, axis=2)  # not a multiple of 8: exercises padding
+    b = np.roll(a, 2, axis=1)
+    flow = raft_flow(loaded, a, b, iterations=2)
+    assert flow.shape == (36, 44, 2) and np.isfinite(flow).all()
+    # wrapped checkpoints ("state_dict", DataParallel "module." prefix) load too
+    wrapped = tmp_path / "wrapped.pth"
+    torch.save({"state_dict": {f"module.{k}": v for k, v in network.state_dict().items()}}, wrapped)
+    again = load_raft(wrapped, "small")
+    assert np.allclose(raft_flow(again, a, b, iterations=2), flow, atol=1e-5)
+
+
+def test_raft_errors_name_the_problem(raft_checkpoint, tmp_path):
+    path, _ = raft_checkpoint
+    with pytest.raises(FileNotFoundError, match="RAFT checkpoint not found"):
+        load_raft(tmp_path / "missing.pth")
+    with pytest.raises(ValueError, match="not a torchvision raft_large state dict"):
+        load_raft(path, "large")
