@@ -18,6 +18,8 @@ def test_demo_tiny(tmp_path, capsys):
     assert report["radar"]["dynamic_recall"] > 0.9
     assert report["depth"]["depth_absrel"] < 0.08
     assert report["masks"]["mask_iou"] > 0.5
+    motion = json.loads((out / "motion" / "results.json").read_text())
+    assert motion["sceneflow"]["epe"] < motion["sceneflow"]["zero_motion_epe"]
     # A second run reuses the scene and the prepared stages.
     assert main(["demo", "--preset", "tiny", "--seed", "2", "--out", str(out)]) == 0
-    assert "radar: skipped, depth: skipped, masks: skipped" in capsys.readouterr().out
+    assert "radar: skipped, depth: skipped, masks: skipped, flow: skipped" in capsys.readouterr().out
