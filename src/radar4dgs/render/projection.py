@@ -51,14 +51,8 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
 
     quats: (..., 4) -> (..., 3, 3). Normalised first, as gsplat's ``quat_to_rotmat`` does.
     """
-    q = quats / quats.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    )  # fmt: skip
-    return torch.stack(rows, dim=-1).reshape(q.shape[:-1] + (3, 3))
+    flat = quats.reshape(-1, 4)
+    return _rotmat_components(flat).permute(2, 0, 1).reshape(quats.shape[:-1] + (3, 3))
 
 
 def _rotmat_components(quats: Tensor) -> Tensor:
