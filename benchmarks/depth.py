@@ -10,6 +10,9 @@ points from the radar front end (``radar4dgs.radar``):
   of |s_hat / s - 1| for ``paper``. Target: <= 2 %.
 * Time of scale recovery per 320x180 frame on CPU (pair matching + fit, the cKDTree over the
   pixel directions built once per scene, reported apart). Target: <= 0.2 s.
+* Frame-to-frame jitter of the metric scale, affine with the configured ``temporal_window`` and
+  with independent per-frame fits (window 1): RMS step of median(z / z_gt) between consecutive
+  frames, over pixels nearer than 60 m and over the gt dynamic pixels.
 * IoU of the weight-free sky fallback against ``gt/sky_mask`` (and of ``priors/sky_mask``).
 
 Writes ``benchmarks/results/depth.json`` and one figure per scene, ``docs/images/depth_seed<N>.png``
@@ -146,6 +149,9 @@ def run_seed(seed: int, args) -> dict:
         warnings.simplefilter("ignore")
         # 1. The Depth-Anything-like prior of the scene, both methods.
         relative = evaluate_depth_methods(scene, config, ("affine", "paper"), static_masks=masks)
+        # 1b. The same with independent per-frame fits (temporal_window 1): the jitter baseline.
+        per_frame = evaluate_depth_methods(scene, preset(DepthConfig, args.preset, temporal_window=1), ("affine",),
+                                           static_masks=masks)["affine"]
         # 2. gt depth divided by an unknown scale.
         true_scale = float(np.exp(np.random.default_rng(1000 + seed).uniform(np.log(0.05), np.log(20.0))))
 
@@ -157,8 +163,11 @@ def run_seed(seed: int, args) -> dict:
         # 3. The weight-free sky fallback (the scene's priors/sky_mask ignored).
         fallback = evaluate_depth_methods(scene, preset(DepthConfig, args.preset, sky_source="fallback"),
                                           ("affine",), static_masks=masks)
-    keys = ("depth_absrel", "depth_rmse", "depth_delta1", "depth_coverage", "fallbacks")
+    keys = ("depth_absrel", "depth_rmse", "depth_delta1", "depth_coverage", "fallbacks",
+            "depth_ratio_jitter", "depth_ratio_jitter_dynamic")
     result["da_like_prior"] = {m: {k: r[k] for k in keys} for m, r in relative.items()}
+    result["da_like_prior"]["affine_per_frame"] = {k: per_frame[k] for k in keys}
+    result["temporal_window"] = config.temporal_window
     result["pure_scale_prior"] = {"true_scale": true_scale,
                                   **{m: {**{k: r[k] for k in keys}, "scale_error_median": r["scale_error_median"]}
                                      for m, r in scaled.items()}}
@@ -205,6 +214,14 @@ def main(argv=None) -> int:
     t_pap = collect(("timing", "paper", "p95_s"))
     summary = {
         "affine_absrel_mean": float(np.mean(affine)), "affine_absrel_max": float(np.max(affine)),
+        "affine_per_frame_absrel_mean": float(np.mean(collect(("da_like_prior", "affine_per_frame", "depth_absrel")))),
+        "affine_ratio_jitter_mean": float(np.mean(collect(("da_like_prior", "affine", "depth_ratio_jitter")))),
+        "affine_per_frame_ratio_jitter_mean":
+            float(np.mean(collect(("da_like_prior", "affine_per_frame", "depth_ratio_jitter")))),
+        "affine_ratio_jitter_dynamic_mean":
+            float(np.mean(collect(("da_like_prior", "affine", "depth_ratio_jitter_dynamic")))),
+        "affine_per_frame_ratio_jitter_dynamic_mean":
+            float(np.mean(collect(("da_like_prior", "affine_per_frame", "depth_ratio_jitter_dynamic")))),
         "paper_absrel_mean": float(np.mean(paper)), "paper_absrel_min": float(np.min(paper)),
         "affine_rmse_mean": float(np.mean(collect(("da_like_prior", "affine", "depth_rmse")))),
         "paper_rmse_mean": float(np.mean(collect(("da_like_prior", "paper", "depth_rmse")))),
@@ -236,6 +253,11 @@ def main(argv=None) -> int:
               f"{s['da_like_prior']['paper']['depth_rmse']:>10.2f} {s['pure_scale_prior']['paper']['scale_error_median']:>14.5f} "
               f"{s['timing']['affine']['p95_s']:>12.4f} {s['timing']['paper']['p95_s']:>11.4f} "
               f"{s['sky']['iou_fallback']:>10.4f} {s['sky']['iou_prior']:>13.4f}")
+    print(f"affine frame-to-frame jitter of median(z/z_gt) (RMS step, z_gt < 60 m / dynamic pixels), "
+          f"temporal_window {seeds[0]['temporal_window']}: {summary['affine_ratio_jitter_mean']:.4%} / "
+          f"{summary['affine_ratio_jitter_dynamic_mean']:.4%}; per-frame fits (window 1): "
+          f"{summary['affine_per_frame_ratio_jitter_mean']:.4%} / {summary['affine_per_frame_ratio_jitter_dynamic_mean']:.4%}; "
+          f"AbsRel {summary['affine_absrel_mean']:.4f} vs {summary['affine_per_frame_absrel_mean']:.4f}")
     for name, ok in checks.items():
         print(f"  [{'PASS' if ok else 'FAIL'}] {name}")
     print(f"wrote {args.out}")

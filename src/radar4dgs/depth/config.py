@@ -85,6 +85,14 @@ class DepthConfig:
     min_depth_spread: float = 0.05
     # Seed of the RANSAC random generator (each frame uses seed + frame index).
     seed: int = 0
+    # "affine": temporal consistency. After the per-frame robust fits, frame i's (a, b) is
+    # re-estimated from the radar inliers of the frames within +-(temporal_window // 2), weighted
+    # by 1 - |j - i| / (half + 1), under a locally *linear* drift model
+    # 1/z_j = (a_i + alpha (j - i)) x_j + (b_i + beta (j - i)) (Huber IRLS): parameters that drift
+    # slowly (monocular networks on video) are followed without lag, the per-frame noise of ~300
+    # radar pairs averages out (less frame-to-frame jitter of the metric scale, which scene flow
+    # turns into spurious motion along the ray). Odd, >= 1; 1 = independent per-frame fits.
+    temporal_window: int = 5
 
     # ---- output
     # Confidence multiplier of frames whose parameters came from neighbours.
@@ -129,6 +137,8 @@ class DepthConfig:
             raise ValueError(f"min_pairs must be >= 2 (two unknowns), got {self.min_pairs}")
         if self.visual_stride < 1 or self.histogram_bins < 1:
             raise ValueError("visual_stride and histogram_bins must be >= 1")
+        if self.temporal_window < 1 or self.temporal_window % 2 == 0:
+            raise ValueError(f"temporal_window must be an odd number >= 1, got {self.temporal_window}")
         if not 0 < self.sky_top_rows <= 1:
             raise ValueError(f"sky_top_rows must be in (0, 1], got {self.sky_top_rows}")
 

@@ -12,6 +12,11 @@ Definitions (each frame scored alone, then averaged over frames, as the KITTI de
   ``PURE_SCALE_TOLERANCE``, with ``s = median(x z_gt)``), the median over frames of
   |s_hat / s - 1| with ``s_hat = 1 / scale`` the recovered depth scale; otherwise None. Needs the
   relative prior (``<prepared>/depth/relative``, kept by default).
+* ``depth_ratio_jitter``: RMS over consecutive frames of the change of median(z / z_gt) over the
+  scored pixels with z_gt < ``JITTER_MAX_DEPTH`` (frame-to-frame scale jitter: scene flow lifted
+  with two frames' depths turns it into motion along the ray); ``depth_ratio_jitter_dynamic`` the
+  same over ``gt/dynamic_mask`` pixels (frames with fewer than 20 such pixels skipped; None without
+  the mask).
 * ``sky_iou``: mean over frames of IoU(sky, gt/sky_mask) (a frame where both are empty counts 1).
 """
 
@@ -27,6 +32,22 @@ from radar4dgs.depth.sky import mask_iou
 
 # A frame counts as "pure scale" when its log depth ratios spread less than this (0.2 %).
 PURE_SCALE_TOLERANCE = 2e-3
+# Depth jitter is measured on pixels nearer than this (m).
+JITTER_MAX_DEPTH = 60.0
+
+
+def _median_ratio(prediction: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) -> float:
+    scored = np.isfinite(truth) & (truth > 0) & (truth < JITTER_MAX_DEPTH) & np.isfinite(prediction) & (prediction > 0)
+    if mask is not None:
+        scored &= mask
+    return float(np.median(prediction[scored] / truth[scored])) if scored.sum() >= 20 else float("nan")
+
+
+def ratio_jitter(ratios: Sequence[float]) -> float | None:
+    """RMS of the change of per-frame ratios between consecutive frames (NaN frames skipped)."""
+    steps = np.diff(np.asarray(ratios, dtype=np.float64))
+    steps = steps[np.isfinite(steps)]
+    return float(np.sqrt(np.mean(steps ** 2))) if len(steps) else None
 
 
 def frame_depth_errors(prediction: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -84,6 +105,13 @@ def score_frames(scene, depths: Sequence[np.ndarray], skies: Sequence[np.ndarray
         result["depth_delta1"] = _mean([e["delta1"] for e in errors])
         result["depth_coverage"] = _mean([e["coverage"] for e in errors])
         result["depth_absrel_frames"] = [e["absrel"] for e in errors]
+        truths = [scene.load_optional("gt/depth", i) for i in range(len(depths))]
+        result["depth_ratio_jitter"] = ratio_jitter([_median_ratio(d, g) for d, g in zip(depths, truths)])
+        result["depth_ratio_jitter_dynamic"] = None
+        if scene.has("gt/dynamic_mask"):
+            result["depth_ratio_jitter_dynamic"] = ratio_jitter(
+                [_median_ratio(d, g, np.asarray(scene.load_optional("gt/dynamic_mask", i)) > 0)
+                 for i, (d, g) in enumerate(zip(depths, truths))])
         if relatives is not None and scales is not None:
             scale_errors = [frame_scale_error(x, scene.load_optional("gt/depth", i), a)
                             for i, (x, a) in enumerate(zip(relatives, scales))]

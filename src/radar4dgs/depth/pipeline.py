@@ -29,7 +29,8 @@ from radar4dgs.data.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.depth.geometry import DirectionIndex, scene_radar_to_camera, transform_points
 from radar4dgs.depth.scale import (DYNAMIC, DepthWarning, FrameFit, FrameParameters, confidence_map, fill_from_neighbours,
-                                   frame_confidences, metric_depth, recover_scale)
+                                   frame_confidences, metric_depth, recover_scale,
+                                   temporal_refine)
 from radar4dgs.depth.sky import fallback_sky_mask
 from radar4dgs.depth.sources import build_depth_model, frame_inverse_depth, resolve_source
 
@@ -163,6 +164,10 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
     if unavailable:
         warnings.warn(f"depth: no static/dynamic radar flags for some frames ({'; '.join(unavailable)}); "
                       "all radar points used, the robust fit has to reject moving ones", DepthWarning, stacklevel=2)
+    if method == "affine" and config.temporal_window > 1:
+        start = time.perf_counter()
+        fits = temporal_refine(fits, config)
+        info["temporal_s"] = time.perf_counter() - start
     names = [f.name for f in scene.frames]
     parameters = fill_from_neighbours(fits, [f.timestamp for f in scene.frames], names)
     return fits, parameters, info

@@ -356,6 +356,79 @@ def affine_fit(pairs: RadarPairs, config: DepthConfig, rng: np.random.Generator)
     return _finish(FrameFit("affine", a, b, True, "ok", pairs, inliers, scale_only=scale_only))
 
 
+def _window_irls(x: np.ndarray, z: np.ndarray, d: np.ndarray, w: np.ndarray, a: float, b: float,
+                 scale_only: bool, drift: bool, threshold: float, huber_delta: float, iterations: int
+                 ) -> tuple[float, float]:
+    """Huber IRLS of ``z ((a + alpha d) x + (b + beta d)) = 1`` on pairs with prior weights ``w``
+    (frame offsets ``d``), started at ``(a, b)`` with no drift; returns the centre ``(a, b)``
+    (NaN when fewer than 2 pairs stay within ``threshold``). ``scale_only``: b = beta = 0;
+    ``drift`` False: alpha = beta = 0."""
+    columns = [z * x] + ([] if scale_only else [z])
+    if drift:
+        columns += [z * x * d] + ([] if scale_only else [z * d])
+    design = np.stack(columns, axis=1)
+    theta = np.zeros(design.shape[1])
+    theta[0] = a
+    if not scale_only:
+        theta[1] = b
+    for _ in range(iterations + 1):
+        r = design @ theta - 1.0
+        keep = np.abs(r) < threshold
+        if keep.sum() < design.shape[1]:
+            return math.nan, math.nan
+        sw = np.sqrt(w[keep] * np.minimum(1.0, huber_delta / np.maximum(np.abs(r[keep]), 1e-12)))
+        new, *_ = np.linalg.lstsq(design[keep] * sw[:, None], sw, rcond=None)
+        step = np.abs(new[:2] - theta[:2]).max()
+        theta = new
+        if step <= 1e-12 * abs(theta[0]):
+            break
+    return float(theta[0]), (0.0 if scale_only else float(theta[1]))
+
+
+def temporal_refine(fits: list[FrameFit], config: DepthConfig) -> list[FrameFit]:
+    """Temporal consistency of the ``affine`` per-frame parameters (``config.temporal_window``).
+
+    Frame i's ``(a_i, b_i)`` is re-fitted on the robust-fit inliers of every good frame j with
+    ``|j - i| <= half = temporal_window // 2`` (its own included), each pair weighted
+    ``1 - |j - i| / (half + 1)``, with the model ``1/z = (a_i + alpha (j - i)) x + (b_i + beta (j - i))``:
+    scale and shift drift linearly across the window (locally linear regression in time), so a
+    slow drift is followed without bias and the per-frame pair noise averages out. Each pair keeps
+    its own frame's prior value ``x_j``. Frames whose fit failed are not used and stay failed (the
+    neighbour fallback fills them afterwards); ``paper`` fits and ``temporal_window`` 1 are returned
+    unchanged. Each refined fit keeps its per-frame parameters in ``extra["frame_a"]`` /
+    ``extra["frame_b"]`` and the frames used in ``extra["window_frames"]``.
+    """
+    half = config.temporal_window // 2
+    if half == 0:
+        return list(fits)
+    out: list[FrameFit] = []
+    for i, fit in enumerate(fits):
+        if not (fit.ok and fit.method == "affine"):
+            out.append(fit)
+            continue
+        used = [j for j in range(max(0, i - half), min(len(fits), i + half + 1))
+                if fits[j].ok and fits[j].method == "affine" and fits[j].num_inliers > 0]
+        xs, zs, ds, ws = [], [], [], []
+        for j in used:
+            inl = fits[j].inliers
+            xs.append(fits[j].pairs.x[inl])
+            zs.append(fits[j].pairs.z[inl])
+            ds.append(np.full(int(inl.sum()), float(j - i)))
+            ws.append(np.full(int(inl.sum()), 1.0 - abs(j - i) / (half + 1.0)))
+        # A drift needs data at two offsets at least; otherwise this is the frame's own fit again.
+        a, b = _window_irls(np.concatenate(xs), np.concatenate(zs), np.concatenate(ds), np.concatenate(ws),
+                            fit.a, fit.b, fit.scale_only, len(used) >= 2, config.inlier_threshold,
+                            config.huber_delta, config.irls_iterations)
+        if not (math.isfinite(a) and a > 0 and math.isfinite(b)):
+            out.append(fit)  # keep the frame's own fit
+            continue
+        extra = {**fit.extra, "frame_a": fit.a, "frame_b": fit.b, "window_frames": used}
+        refined = FrameFit(fit.method, a, b, True, fit.reason, fit.pairs, fit.inliers, fit.votes,
+                           fit.scale_only, extra=extra)
+        out.append(_finish(refined))
+    return out
+
+
 def _finish(fit: FrameFit) -> FrameFit:
     """Fill the inlier statistics used by the confidence map and the summary."""
     if fit.inliers.any():
