@@ -11,7 +11,8 @@ from radar4dgs.cli import main
 from radar4dgs.data.inspect import contact_sheet, doppler_colors, radar_points_in_camera, summarize_scene
 from radar4dgs.data.scene import read_scene
 
-from tests.data.test_scene import FRAMES, HEIGHT, WIDTH, write_valid_scene
+# pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
+from test_scene import FRAMES, HEIGHT, WIDTH, write_valid_scene
 
 
 @pytest.fixture(scope="module")
