@@ -7,7 +7,7 @@ import numpy as np
 from radar4dgs.data.synth import world as W
 from radar4dgs.data.synth.config import LidarSimConfig
 from radar4dgs.data.synth.radar import spherical_to_xyz
-from radar4dgs.data.synth.raycast import NO_HIT, azimuth_windows, cast, rigid
+from radar4dgs.data.synth.raycast import NO_HIT, cast_sensor_grid, rigid
 from radar4dgs.data.synth.shade import albedo
 
 
@@ -19,18 +19,9 @@ def simulate(world: W.World, config: LidarSimConfig, time: float, rng: np.random
     elevations = np.radians(np.linspace(*config.elevation_range_deg, config.beams))
     dirs_lidar = spherical_to_xyz(np.ones((len(elevations), n_az)), azimuths[None, :], elevations[:, None])
     mount = rigid(np.eye(3), config.mount_xyz)
-    ego_to_road = world.ego.pose(time)
-    lidar_to_road = ego_to_road @ mount
-    road_to_lidar = np.linalg.inv(lidar_to_road)
-    origin = lidar_to_road[:3, 3]
-    dirs = dirs_lidar @ lidar_to_road[:3, :3].T
     prims = world.primitives_at(time)
-    margin = np.radians(360.0 / n_az)
-    rows = len(elevations)
-    hits = cast(origin, dirs, prims,
-                azimuth_windows(prims.box_corners(), road_to_lidar, azimuths, margin, rows, config.max_range),
-                azimuth_windows(prims.sphere_corners(), road_to_lidar, azimuths, margin, rows, config.max_range),
-                t_max=config.max_range)
+    origin, dirs, _, hits = cast_sensor_grid(prims, world.ego.pose(time) @ mount, dirs_lidar, azimuths,
+                                             np.radians(360.0 / n_az), config.max_range)
     hit = hits.prim != NO_HIT
     t, d, n, prim = hits.t[hit], dirs[hit], hits.normal[hit], hits.prim[hit]
     p = origin + d * t[:, None]

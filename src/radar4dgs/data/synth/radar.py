@@ -15,7 +15,7 @@ import numpy as np
 
 from radar4dgs.data.synth import world as W
 from radar4dgs.data.synth.config import RadarSimConfig
-from radar4dgs.data.synth.raycast import NO_HIT, apply, azimuth_windows, cast, rigid, rot_y, rot_z
+from radar4dgs.data.synth.raycast import NO_HIT, apply, cast_sensor_grid, rigid, rot_y, rot_z
 
 FIELDS = ("x", "y", "z", "v_r", "rcs")
 STATIC, MOVING, CLUTTER = 0, 1, -1
@@ -98,16 +98,9 @@ def simulate(world: W.World, config: RadarSimConfig, mount: np.ndarray, time: fl
     az = azimuths[None, :] + rng.uniform(-0.5, 0.5, (len(elevations), len(azimuths))) * step_az
     el = elevations[:, None] + rng.uniform(-0.5, 0.5, (len(elevations), len(azimuths))) * step_el
     dirs_radar = spherical_to_xyz(np.ones_like(az), az, el)
-    radar_to_road = world.ego.pose(time) @ mount
-    road_to_radar = np.linalg.inv(radar_to_road)
-    origin = radar_to_road[:3, 3]
-    dirs = dirs_radar @ radar_to_road[:3, :3].T
     prims = world.primitives_at(time)
-    rows = len(elevations)
-    hits = cast(origin, dirs, prims,
-                azimuth_windows(prims.box_corners(), road_to_radar, azimuths, step_az, rows, config.max_range),
-                azimuth_windows(prims.sphere_corners(), road_to_radar, azimuths, step_az, rows, config.max_range),
-                t_max=config.max_range)
+    origin, dirs, road_to_radar, hits = cast_sensor_grid(prims, world.ego.pose(time) @ mount, dirs_radar,
+                                                         azimuths, step_az, config.max_range)
 
     hit = hits.prim != NO_HIT
     t, d, n, prim = hits.t[hit], dirs[hit], hits.normal[hit], hits.prim[hit]

@@ -258,3 +258,23 @@ def azimuth_windows(corners: np.ndarray, road_to_sensor: np.ndarray, azimuths: n
     windows = np.stack([np.zeros_like(c0), np.full_like(c0, rows), c0, c1], axis=1)
     windows[dist - radius > max_range] = 0
     return windows.astype(np.int64)
+
+
+def cast_sensor_grid(prims: Primitives, sensor_to_road: np.ndarray, dirs_sensor: np.ndarray,
+                     azimuths: np.ndarray, margin: float, max_range: float):
+    """Cast a rotating sensor's ray grid (lidar, radar) from its pose into the world.
+
+    ``dirs_sensor`` (rows, columns, 3) are unit rays in the sensor frame on a grid whose columns are
+    the sorted ``azimuths``; primitives are culled per azimuth column (``margin`` rad wider, for
+    jittered rays). Returns (origin (3,), road-frame dirs (rows, columns, 3), road_to_sensor (4, 4),
+    the :func:`cast` hits).
+    """
+    road_to_sensor = np.linalg.inv(sensor_to_road)
+    origin = sensor_to_road[:3, 3]
+    dirs = dirs_sensor @ sensor_to_road[:3, :3].T
+    rows = dirs_sensor.shape[0]
+    hits = cast(origin, dirs, prims,
+                azimuth_windows(prims.box_corners(), road_to_sensor, azimuths, margin, rows, max_range),
+                azimuth_windows(prims.sphere_corners(), road_to_sensor, azimuths, margin, rows, max_range),
+                t_max=max_range)
+    return origin, dirs, road_to_sensor, hits
