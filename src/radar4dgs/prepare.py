@@ -131,7 +131,9 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
         upstream_changed = True
 
         def bar(items, _name=stage.name):
-            return tqdm(items, total=len(scene), desc=_name, unit="frame", disable=not progress)
+            # Stages iterate over frames, or over frame pairs (flow); generators are per frame.
+            total = len(items) if hasattr(items, "__len__") else len(scene)
+            return tqdm(items, total=total, desc=_name, unit="item", disable=not progress)
 
         with atomic_directory(stage_dir, overwrite=True) as tmp:
             result = stage.run(scene, tmp, stage_config, bar)
