@@ -1,0 +1,308 @@
+"""Gaussian components and their initialisation from the prepared metric depth (issue 8, stage 7).
+
+Every training frame's metric depth (``prepared/depth/<frame>.npy``) is back-projected into world
+points; sky pixels (``prepared/depth/sky/<frame>.png`` or non-finite depth) are dropped, the rest
+subsampled deterministically, coloured from the image and split by the predicted dynamic masks
+(``prepared/masks/<frame>.png``) into a static and a dynamic :class:`GaussianSet`. Dynamic points
+keep the normalised time of their frame, so the trainer can move them into the canonical space of
+the deformation field with :func:`to_canonical`.
+
+Pixel convention: the scene's intrinsics put pixel centres at integer coordinates (OpenCV), so the
+pixel in row ``v``, column ``u`` back-projects along ``K^-1 (u, v, 1)``. (The rasterizer puts pixel
+centres at ``+0.5``: the trainer shifts ``cx, cy`` by 0.5 when it renders.)
+
+Like drivestudio's components, a :class:`GaussianSet` holds its parameters in a
+``torch.nn.ParameterDict``, hands out activated tensors (:meth:`GaussianSet.activated`) and its
+optimizer parameter groups (:meth:`GaussianSet.param_groups`); densification lives elsewhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Mapping, Sequence
+
+import numpy as np
+import torch
+from PIL import Image
+from scipy.spatial import cKDTree
+from torch import Tensor, nn
+
+PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
+
+
+@dataclass
+class GaussianInitConfig:
+    """How the Gaussians are initialised from the prepared depth."""
+
+    # Candidate pixels are taken on a grid with this step (1 = every pixel) before subsampling.
+    pixel_stride: int = 2
+    # At most this many points are kept per training frame (uniform random subset of the
+    # candidates); 0 or less keeps every candidate.
+    points_per_frame: int = 20_000
+    # Cap on the total number of static Gaussians (uniform random subset over all frames).
+    max_static: int = 200_000
+    # Cap on the total number of dynamic Gaussians.
+    max_dynamic: int = 50_000
+    # Pixels whose depth confidence (``depth/<frame>_confidence.npy``) is below this are dropped;
+    # 0 keeps every non-sky pixel (confidence is 0 where the depth stage had no radar support,
+    # which is still a usable initial position).
+    min_confidence: float = 0.0
+    # Pixels deeper than this (metres) are dropped: far background is left to the sky map.
+    max_depth: float = 200.0
+    # Initial opacity of every Gaussian, in (0, 1).
+    init_opacity: float = 0.1
+    # Initial scale = mean distance to this many nearest neighbours (isotropic).
+    knn_k: int = 3
+    # Initial scales are clamped to [min_scale, max_scale] metres (duplicates give 0 distance).
+    min_scale: float = 1e-3
+    max_scale: float = 3.0
+    # Seed of the subsampling generator (np.random.default_rng).
+    seed: int = 0
+
+    PRESETS: ClassVar[dict[str, dict]] = {
+        # 160x90 synthetic frames: every second pixel is ~3.6k candidates, keep them all.
+        "tiny": {"pixel_stride": 2, "points_per_frame": 4_000, "max_static": 20_000, "max_dynamic": 5_000},
+        "small": {"pixel_stride": 2, "points_per_frame": 15_000, "max_static": 150_000, "max_dynamic": 30_000},
+        # 1920x1080 x 50 frames: ~2M candidates per frame at stride 1; keep a dense but bounded set.
+        "paper": {"pixel_stride": 2, "points_per_frame": 40_000, "max_static": 1_000_000,
+                  "max_dynamic": 200_000},
+    }
+
+    def __post_init__(self) -> None:
+        if self.pixel_stride < 1:
+            raise ValueError(f"pixel_stride must be >= 1, got {self.pixel_stride}")
+        if not 0.0 < self.init_opacity < 1.0:
+            raise ValueError(f"init_opacity must lie in (0, 1), got {self.init_opacity}")
+        if self.knn_k < 1:
+            raise ValueError(f"knn_k must be >= 1, got {self.knn_k}")
+        if not 0.0 < self.min_scale <= self.max_scale:
+            raise ValueError(f"need 0 < min_scale <= max_scale, got {self.min_scale}, {self.max_scale}")
+        if self.max_static < 0 or self.max_dynamic < 0:
+            raise ValueError("max_static and max_dynamic must be >= 0")
+
+
+# --------------------------------------------------------------------------------------------
+# Back-projection
+
+
+def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing mask (run `radar4dgs prepare` first)")
+    with Image.open(path) as image:
+        mask = np.asarray(image.convert("L")) > 127
+    if mask.shape != shape:
+        raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]}, expected {shape[1]}x{shape[0]}")
+    return mask
+
+
+def normalized_frame_times(scene) -> np.ndarray:
+    """(F,) float64 ``t = (timestamp - t0) / (t_last - t0)``; zeros for a single frame."""
+    stamps = np.array([f.timestamp for f in scene.frames], dtype=np.float64)
+    span = stamps[-1] - stamps[0] if len(stamps) > 1 else 0.0
+    return (stamps - stamps[0]) / span if span > 0 else np.zeros_like(stamps)
+
+
+def backproject_frame(scene, prepared_dir: Path | str, index: int, config: GaussianInitConfig,
+                      rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Back-project one frame; keys as :func:`backproject_frames` plus ``pixels`` (M, 2) (u, v) ints."""
+    prepared = Path(prepared_dir)
+    name = scene.frames[index].name
+    H, W = scene.camera.height, scene.camera.width
+    depth_path = prepared / "depth" / f"{name}.npy"
+    if not depth_path.is_file():
+        raise FileNotFoundError(f"{depth_path}: missing depth (run `radar4dgs prepare` first)")
+    depth = np.load(depth_path).astype(np.float64)
+    if depth.shape != (H, W):
+        raise ValueError(f"{depth_path}: depth has shape {depth.shape}, expected {(H, W)}")
+    keep = np.isfinite(depth) & (depth > 0) & (depth <= config.max_depth)
+    keep &= ~_read_mask(prepared / "depth" / "sky" / f"{name}.png", (H, W))
+    if config.min_confidence > 0:
+        conf_path = prepared / "depth" / f"{name}_confidence.npy"
+        keep &= np.load(conf_path) >= config.min_confidence
+    grid = np.zeros((H, W), dtype=bool)
+    grid[::config.pixel_stride, ::config.pixel_stride] = True
+    v, u = np.nonzero(keep & grid)  # row-major order: deterministic
+    if 0 < config.points_per_frame < len(u):
+        chosen = np.sort(rng.choice(len(u), size=config.points_per_frame, replace=False))
+        v, u = v[chosen], u[chosen]
+    z = depth[v, u]
+    K = np.asarray(scene.camera.K, dtype=np.float64)
+    x_cam = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    cam_to_world = np.linalg.inv(scene.world_to_camera(index))
+    points = x_cam @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
+    image = scene.load_image(index)
+    dynamic = _read_mask(prepared / "masks" / f"{name}.png", (H, W))
+    return {
+        "points": points,
+        "colors": image[v, u].astype(np.float64) / 255.0,
+        "frame": np.full(len(u), index, dtype=np.int64),
+        "dynamic": dynamic[v, u],
+        "pixels": np.stack([u, v], axis=1).astype(np.int64),
+    }
+
+
+def backproject_frames(scene, prepared_dir: Path | str, config: GaussianInitConfig,
+                       frames: Sequence[int] | None = None) -> dict[str, np.ndarray]:
+    """Back-project the training frames' (or ``frames``') prepared metric depth into world points.
+
+    Returns numpy arrays: ``points`` (M, 3) float64 world, ``colors`` (M, 3) float64 in [0, 1],
+    ``frame`` (M,) int64 frame index, ``dynamic`` (M,) bool (predicted dynamic mask), ``pixels``
+    (M, 2) int64 (u, v). Sky pixels (sky mask or non-finite depth) never appear. The subsampling is
+    deterministic given ``config.seed``; the per-type caps are applied afterwards.
+    """
+    frames = list(scene.train_indices if frames is None else frames)
+    rng = np.random.default_rng(config.seed)
+    parts = [backproject_frame(scene, prepared_dir, i, config, rng) for i in frames]
+    keys = ("points", "colors", "frame", "dynamic", "pixels")
+    empty = {"points": np.zeros((0, 3)), "colors": np.zeros((0, 3)), "frame": np.zeros(0, np.int64),
+             "dynamic": np.zeros(0, bool), "pixels": np.zeros((0, 2), np.int64)}
+    out = {k: np.concatenate([p[k] for p in parts], axis=0) if parts else empty[k] for k in keys}
+    # Caps: uniform random subsets of each type, order preserved.
+    keep = np.ones(len(out["frame"]), dtype=bool)
+    for flag, cap in ((False, config.max_static), (True, config.max_dynamic)):
+        idx = np.nonzero(out["dynamic"] == flag)[0]
+        if len(idx) > cap:
+            drop = np.setdiff1d(idx, rng.choice(idx, size=cap, replace=False))
+            keep[drop] = False
+    return {k: v[keep] for k, v in out.items()}
+
+
+# --------------------------------------------------------------------------------------------
+# Gaussian components
+
+
+def knn_log_scales(points: np.ndarray, k: int = 3, min_scale: float = 1e-3,
+                   max_scale: float = 3.0) -> np.ndarray:
+    """(N, 3) isotropic log-scales: log of the mean distance to the ``k`` nearest other points,
+    clamped to [min_scale, max_scale]. With fewer than 2 points the scale is ``max_scale``."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(points)
+    if n < 2:
+        mean = np.full(n, max_scale)
+    else:
+        kk = min(k, n - 1)
+        dist, _ = cKDTree(points).query(points, k=kk + 1)
+        mean = dist.reshape(n, -1)[:, 1:].mean(axis=1)  # column 0 is the point itself
+    mean = np.clip(mean, min_scale, max_scale)
+    return np.repeat(np.log(mean)[:, None], 3, axis=1)
+
+
+def _logit(p: Tensor) -> Tensor:
+    return torch.log(p) - torch.log1p(-p)
+
+
+class GaussianSet(nn.Module):
+    """N Gaussians with parameters in a ``ParameterDict``: ``means`` (N, 3), ``quats`` (N, 4, wxyz),
+    ``log_scales`` (N, 3), ``opacity_logits`` (N,), ``colors`` (N, 3, logits of [0, 1] RGB)."""
+
+    def __init__(self, params: Mapping[str, Tensor]):
+        super().__init__()
+        missing = [n for n in PARAM_NAMES if n not in params]
+        if missing:
+            raise KeyError(f"missing parameters {missing}; need {list(PARAM_NAMES)}")
+        n = params["means"].shape[0]
+        shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
+                  "colors": (n, 3)}
+        for name, shape in shapes.items():
+            if tuple(params[name].shape) != shape:
+                raise ValueError(f"{name} has shape {tuple(params[name].shape)}, expected {shape}")
+        self.params = nn.ParameterDict({name: nn.Parameter(params[name].detach().clone())
+                                        for name in PARAM_NAMES})
+
+    @classmethod
+    def from_points(cls, points: Any, colors: Any, *, init_opacity: float = 0.1, knn_k: int = 3,
+                    min_scale: float = 1e-3, max_scale: float = 3.0,
+                    device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32) -> "GaussianSet":
+        """Gaussians at ``points`` (N, 3) with ``colors`` (N, 3) in [0, 1], identity rotations, kNN
+        isotropic scales and opacity ``init_opacity``."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        colors = np.asarray(colors, dtype=np.float64).reshape(-1, 3)
+        if len(colors) != len(points):
+            raise ValueError(f"{len(points)} points but {len(colors)} colours")
+        n = len(points)
+        kw = {"device": device, "dtype": dtype}
+        quats = torch.zeros(n, 4, **kw)
+        quats[:, 0] = 1.0
+        eps = 1e-4
+        params = {
+            "means": torch.as_tensor(points, **kw),
+            "quats": quats,
+            "log_scales": torch.as_tensor(knn_log_scales(points, knn_k, min_scale, max_scale), **kw),
+            "opacity_logits": _logit(torch.full((n,), float(init_opacity), dtype=torch.float64)).to(**kw),
+            "colors": _logit(torch.as_tensor(np.clip(colors, eps, 1 - eps), dtype=torch.float64)).to(**kw),
+        }
+        return cls(params)
+
+    def __len__(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    @property
+    def num_gaussians(self) -> int:
+        return len(self)
+
+    def activated(self) -> dict[str, Tensor]:
+        """``means`` (N, 3), ``quats`` (N, 4) unit, ``scales`` (N, 3) = exp, ``opacities`` (N,) =
+        sigmoid, ``colors`` (N, 3) = sigmoid; differentiable in the parameters."""
+        p = self.params
+        return {
+            "means": p["means"],
+            "quats": p["quats"] / p["quats"].norm(dim=-1, keepdim=True).clamp_min(1e-12),
+            "scales": torch.exp(p["log_scales"]),
+            "opacities": torch.sigmoid(p["opacity_logits"]),
+            "colors": torch.sigmoid(p["colors"]),
+        }
+
+    def param_groups(self, lrs: Mapping[str, float], prefix: str = "") -> list[dict]:
+        """One optimizer group per parameter named in ``lrs`` (a name left out is not optimised):
+        ``[{"params": [p], "lr": lr, "name": prefix + name}]``. Unknown names raise a KeyError."""
+        unknown = [n for n in lrs if n not in PARAM_NAMES]
+        if unknown:
+            raise KeyError(f"unknown parameter(s) {unknown}; parameters are {list(PARAM_NAMES)}")
+        return [{"params": [self.params[name]], "lr": float(lrs[name]), "name": prefix + name}
+                for name in PARAM_NAMES if name in lrs]
+
+
+# --------------------------------------------------------------------------------------------
+# Initialisation
+
+
+def initialize_gaussians(scene, prepared_dir: Path | str, config: GaussianInitConfig,
+                         device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
+                         frames: Sequence[int] | None = None) -> tuple[GaussianSet, GaussianSet, np.ndarray]:
+    """Static and dynamic Gaussians from the training frames, and the dynamic ones' frame times.
+
+    Returns ``(static, dynamic, dynamic_times)``: the dynamic Gaussians' means are the world points
+    of their frames at normalised time ``dynamic_times`` (Nd,) float64; move them to the canonical
+    space with :func:`to_canonical` once the deformation field is fitted.
+    """
+    data = backproject_frames(scene, prepared_dir, config, frames)
+    times = normalized_frame_times(scene)
+    kw = {"init_opacity": config.init_opacity, "knn_k": config.knn_k, "min_scale": config.min_scale,
+          "max_scale": config.max_scale, "device": device, "dtype": dtype}
+    dyn = data["dynamic"]
+    static = GaussianSet.from_points(data["points"][~dyn], data["colors"][~dyn], **kw)
+    dynamic = GaussianSet.from_points(data["points"][dyn], data["colors"][dyn], **kw)
+    return static, dynamic, times[data["frame"][dyn]]
+
+
+@torch.no_grad()
+def to_canonical(points: Any, times: Any, field: nn.Module, batch_size: int = 65_536) -> Tensor:
+    """``field.inverse(x, t)`` for (N, 3) world ``points`` at (N,) normalised ``times``, in batches
+    and without gradients. Computed in the field's dtype and device; returned in the dtype and on
+    the device of ``points`` when it is a tensor, else in the field's."""
+    ref = next(field.buffers(), None)
+    if ref is None:
+        ref = next(field.parameters())
+    target = points if isinstance(points, Tensor) else None
+    x = torch.as_tensor(points).to(device=ref.device, dtype=ref.dtype).reshape(-1, 3)
+    t = torch.as_tensor(times).to(device=ref.device, dtype=ref.dtype).reshape(-1)
+    if t.numel() == 1 and x.shape[0] != 1:
+        t = t.expand(x.shape[0])
+    if t.shape[0] != x.shape[0]:
+        raise ValueError(f"{x.shape[0]} points but {t.shape[0]} times")
+    out = torch.cat([field.inverse(x[s:s + batch_size], t[s:s + batch_size])
+                     for s in range(0, x.shape[0], batch_size)], dim=0) if x.shape[0] else x.clone()
+    if target is not None:
+        out = out.to(device=target.device, dtype=target.dtype)
+    return out
