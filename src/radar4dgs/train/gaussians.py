@@ -28,6 +28,8 @@ from PIL import Image
 from scipy.spatial import cKDTree
 from torch import Tensor, nn
 
+from radar4dgs.motion.fit import normalized_times
+
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
 
 
@@ -94,13 +96,6 @@ def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     if mask.shape != shape:
         raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]}, expected {shape[1]}x{shape[0]}")
     return mask
-
-
-def normalized_frame_times(scene) -> np.ndarray:
-    """(F,) float64 ``t = (timestamp - t0) / (t_last - t0)``; zeros for a single frame."""
-    stamps = np.array([f.timestamp for f in scene.frames], dtype=np.float64)
-    span = stamps[-1] - stamps[0] if len(stamps) > 1 else 0.0
-    return (stamps - stamps[0]) / span if span > 0 else np.zeros_like(stamps)
 
 
 def backproject_frame(scene, prepared_dir: Path | str, index: int, config: GaussianInitConfig,
@@ -277,7 +272,8 @@ def initialize_gaussians(scene, prepared_dir: Path | str, config: GaussianInitCo
     space with :func:`to_canonical` once the deformation field is fitted.
     """
     data = backproject_frames(scene, prepared_dir, config, frames)
-    times = normalized_frame_times(scene)
+    # The field's own time coordinate: the dynamic points must be moved with the same t it is fitted on.
+    times = normalized_times(scene)
     kw = {"init_opacity": config.init_opacity, "knn_k": config.knn_k, "min_scale": config.min_scale,
           "max_scale": config.max_scale, "device": device, "dtype": dtype}
     dyn = data["dynamic"]
