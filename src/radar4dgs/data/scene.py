@@ -266,11 +266,12 @@ class Scene:
 # Reading
 
 
-def _load_npy(path: Path) -> np.ndarray:
+def _load_npy(path: Path, mmap_mode: str | None = None) -> np.ndarray:
+    """The array in ``path``; ``mmap_mode="r"`` reads only the header until data is touched."""
     if not path.is_file():
         raise SceneError(path, "missing file")
     try:
-        return np.load(path, allow_pickle=False)
+        return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except Exception as exc:
         raise SceneError(path, f"unreadable .npy file ({exc})") from exc
 
@@ -451,13 +452,7 @@ def read_scene(path: str | Path, check_files: bool = True) -> Scene:
                 raise SceneError(image_path, f"image mode {mode} is not 8-bit RGB")
         for frame in frames:
             radar_path = root / "radar" / f"{frame.name}.npy"
-            try:
-                array = np.load(radar_path, mmap_mode="r", allow_pickle=False)
-            except FileNotFoundError:
-                raise SceneError(radar_path, "missing file") from None
-            except Exception as exc:
-                raise SceneError(radar_path, f"unreadable .npy file ({exc})") from exc
-            _check_radar_shape(radar_path, array, fields)
+            _check_radar_shape(radar_path, _load_npy(radar_path, mmap_mode="r"), fields)
 
     extra = {k: v for k, v in meta.items() if k not in _SCENE_KEYS}
     return Scene(root, str(meta.get("name", root.name)), camera, radar, frames, dict(source), test_every,
