@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from radar4dgs.radar.classify import compensated_radial_velocity
+
 
 @dataclass(frozen=True)
 class RadarDynamics:
@@ -70,18 +72,6 @@ def associate_velocities(points: np.ndarray, radar: RadarDynamics, gate: float =
     matched = index >= 0
     velocity[matched] = radar.v_r_comp[index[matched]]
     return velocity
-
-
-def compensated_radial_velocity(xyz: np.ndarray, v_r: np.ndarray, radar_velocity: np.ndarray) -> np.ndarray:
-    """``v_r + d . v_s``: (N,) world radial velocity of (N, 3) radar-frame points with raw Doppler
-    ``v_r`` (N,), for a radar moving with ``radar_velocity`` (3,) (radar axes). Points at the origin
-    get NaN."""
-    xyz = np.asarray(xyz, dtype=np.float64)
-    norm = np.linalg.norm(xyz, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = xyz / norm[:, None]
-    result = np.asarray(v_r, dtype=np.float64) + d @ np.asarray(radar_velocity, dtype=np.float64)
-    return np.where(norm > 0, result, np.nan)
 
 
 def _to_world(scene, index: int, xyz: np.ndarray) -> np.ndarray:

@@ -57,3 +57,15 @@ def classify_dynamic(xyz: Any, v_r: Any, ego: EgoMotion, config: RadarConfig | N
     comp[valid] = v_r[valid] + d[valid] @ ego.velocity
     dynamic[valid] = np.abs(comp[valid]) > dynamic_threshold(d[valid], ego, k)
     return dynamic, comp
+
+
+def compensated_radial_velocity(xyz: np.ndarray, v_r: np.ndarray, radar_velocity: np.ndarray) -> np.ndarray:
+    """``v_r + d . v_s``: (N,) world radial velocity of (N, 3) radar-frame points with raw Doppler
+    ``v_r`` (N,), for a radar moving with ``radar_velocity`` (3,) (radar axes). Points at the origin
+    get NaN."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    norm = np.linalg.norm(xyz, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = xyz / norm[:, None]
+    result = np.asarray(v_r, dtype=np.float64) + d @ np.asarray(radar_velocity, dtype=np.float64)
+    return np.where(norm > 0, result, np.nan)

@@ -21,6 +21,7 @@ import numpy as np
 
 from radar4dgs.data.inspect import radar_points_in_camera
 from radar4dgs.data.scene import Scene, SceneWarning
+from radar4dgs.radar.classify import compensated_radial_velocity
 from radar4dgs.segment.patches import RadarFrame, make_radar_frame
 
 DynamicSource = Literal["auto", "prepared", "estimate", "oracle"]
@@ -39,21 +40,9 @@ def radar_velocity_from_poses(scene: Scene, index: int) -> np.ndarray:
     return scene.radar_to_world(index)[:3, :3].T @ world_velocity
 
 
-def compensate(xyz: np.ndarray, v_r: np.ndarray, radar_velocity: np.ndarray) -> np.ndarray:
-    """(N,) compensated radial velocity ``v_r + d · v_s`` for (N, 3) points, (N,) raw Doppler and
-    the (3,) radar velocity ``v_s`` (radar axes); NaN at zero range."""
-    rng = np.linalg.norm(xyz, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = xyz / rng[:, None]
-    return v_r + d @ radar_velocity
-
-
 def _estimate(xyz: np.ndarray, v_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        from radar4dgs.radar import classify_dynamic, estimate_ego_motion
-    except ImportError:  # the package may not re-export them yet
-        from radar4dgs.radar.classify import classify_dynamic
-        from radar4dgs.radar.ego_motion import estimate_ego_motion
+    from radar4dgs.radar import classify_dynamic, estimate_ego_motion
+
     ego = estimate_ego_motion(xyz, v_r)
     dynamic, comp = classify_dynamic(xyz, v_r, ego)
     return np.asarray(dynamic, bool), np.asarray(comp, np.float64)
@@ -73,7 +62,7 @@ def dynamic_points(scene: Scene, index: int, xyz: np.ndarray, v_r: np.ndarray, s
         return dynamic, comp
     if source == "oracle":
         labels = scene.load_optional("gt/radar_labels", index)
-        return labels == 1, compensate(xyz, v_r, radar_velocity_from_poses(scene, index))
+        return labels == 1, compensated_radial_velocity(xyz, v_r, radar_velocity_from_poses(scene, index))
     if len(xyz) == 0:
         return np.zeros(0, bool), np.zeros(0)
     return _estimate(xyz, v_r)
