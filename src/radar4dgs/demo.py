@@ -10,7 +10,7 @@ from radar4dgs.config import PresetName, preset
 
 # Stages of DESIGN.md not yet implemented, with the issue that builds each; the demo says so.
 NOT_BUILT_YET: tuple[str, ...] = (
-    "Gaussian initialisation, three-stage training, evaluation and rendering (issue 8)",
+    "three-stage Gaussian training, evaluation and rendering (issue 8)",
 )
 
 

@@ -54,11 +54,10 @@ class PrepareConfig:
 
 @dataclass(frozen=True)
 class Stage:
-    """One prepare stage: its folder name, its part of the config, and its runner
-    ``run(scene, out_dir, stage_config, progress) -> summary dict``."""
+    """One prepare stage: its folder name (also its field of :class:`PrepareConfig`) and its
+    runner ``run(scene, out_dir, stage_config, progress) -> summary dict``."""
 
     name: str
-    config_of: Callable[[PrepareConfig], Any]
     run: Callable[..., dict]
 
 
@@ -81,10 +80,10 @@ def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Ca
 
 
 STAGES: tuple[Stage, ...] = (
-    Stage("radar", lambda c: c.radar, _run_radar),
-    Stage("depth", lambda c: c.depth, _run_depth),
-    Stage("masks", lambda c: c.masks, _run_masks),
-    Stage("flow", lambda c: c.flow, run_flow_stage),
+    Stage("radar", _run_radar),
+    Stage("depth", _run_depth),
+    Stage("masks", _run_masks),
+    Stage("flow", run_flow_stage),
 )
 
 
@@ -124,7 +123,7 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
         if only and stage.name not in only:
             continue
         stage_dir = prepared / stage.name
-        stage_config = stage.config_of(config)
+        stage_config = getattr(config, stage.name)
         if not force and not upstream_changed and stage_is_current(stage_dir, stage_config, fingerprint):
             status[stage.name] = "skipped"
             continue

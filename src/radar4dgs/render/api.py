@@ -10,6 +10,7 @@ channels get a zero background.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -45,14 +46,8 @@ class RasterConfig:
     checkpoint: bool = False
 
     def kwargs(self) -> dict[str, Any]:
-        """The options as keyword arguments of :func:`rasterize`."""
-        return {
-            "backend": self.backend,
-            "tile_size": self.tile_size,
-            "chunk_tiles": self.chunk_tiles,
-            "block_k": self.block_k,
-            "checkpoint": self.checkpoint,
-        }
+        """The options as keyword arguments of :func:`rasterize` (every field is one)."""
+        return dataclasses.asdict(self)
 
 
 def select_backend(backend: str, device: torch.device) -> str:

@@ -46,17 +46,9 @@ class Projection(NamedTuple):
     visible: Tensor  # (C, N) bool, radii > 0 on both axes
 
 
-def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """Rotation matrices from wxyz quaternions that need not be normalised.
-
-    quats: (..., 4) -> (..., 3, 3). Normalised first, as gsplat's ``quat_to_rotmat`` does.
-    """
-    flat = quats.reshape(-1, 4)
-    return _rotmat_components(flat).permute(2, 0, 1).reshape(quats.shape[:-1] + (3, 3))
-
-
 def _rotmat_components(quats: Tensor) -> Tensor:
-    """quat_to_rotmat, component-major: quats (N, 4) -> (3, 3, N)."""
+    """Rotation matrices of wxyz quaternions (normalised first, as gsplat), component-major:
+    quats (N, 4) -> (3, 3, N)."""
     q = quats / quats.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
     rows = (
@@ -65,12 +57,6 @@ def _rotmat_components(quats: Tensor) -> Tensor:
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
     )  # fmt: skip
     return torch.stack(rows, dim=0).reshape((3, 3) + q.shape[:-1])
-
-
-def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
-    """World-space covariances ``R S S^T R^T``. quats (N, 4), scales (N, 3) -> (N, 3, 3)."""
-    m = quat_to_rotmat(quats) * scales[..., None, :]  # R @ diag(s)
-    return m @ m.transpose(-1, -2)
 
 
 def project_gaussians(
@@ -97,7 +83,7 @@ def project_gaussians(
     trans = viewmats[:, :3, 3]  # (C, 3)
     means_c = torch.einsum("cij,nj->cni", rot, means) + trans[:, None, :]  # (C, N, 3)
     # R S of each Gaussian, component-major (3, 3, N) so that every op below runs along N
-    # (vectorised); its covariance is (R S)(R S)^T (see covariance_3d).
+    # (vectorised); its covariance is (R S)(R S)^T.
     rs = _rotmat_components(quats) * scales.transpose(0, 1)[None]  # (3, 3, N): R_ik s_k
 
     x, y, z = means_c.unbind(-1)  # (C, N)

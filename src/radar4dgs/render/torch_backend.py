@@ -67,11 +67,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+# The skip threshold (`#define ALPHA_THRESHOLD (1.f / 255.f)`) is shared with the projection's cull.
+from radar4dgs.render.projection import ALPHA_THRESHOLD
+
 # gsplat 1.5.3 constants (gsplat/cuda/csrc/RasterizeToPixels3DGSFwd.cu, cuda/include/Common.h).
 MAX_ALPHA = 0.999  # `min(0.999f, opac * __expf(-sigma))`
-ALPHA_THRESHOLD = 1.0 / 255.0  # `#define ALPHA_THRESHOLD (1.f / 255.f)`, skip below
 TRANSMITTANCE_THRESHOLD = 1e-4  # `if (next_T <= 1e-4f)`: stop, that Gaussian not blended
-LOG_MAX_ALPHA = math.log(MAX_ALPHA)
 # alpha is evaluated as exp2 of a base-2 logit: exp2 is ~2x cheaper than exp on CPU (AVX2).
 LOG2_E = 1.0 / math.log(2.0)
 LOG2_MAX_ALPHA = math.log2(MAX_ALPHA)

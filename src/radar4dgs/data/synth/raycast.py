@@ -84,26 +84,6 @@ class Primitives:
         return self.sphere_center[:, None, :] + signs[None] * self.sphere_radius[:, None, None]
 
 
-def concat_primitives(parts: list[Primitives]) -> Primitives:
-    """Concatenate primitive sets; each part's entry 0 (the ground) is dropped except the first's."""
-    def rows(p: Primitives, name: str) -> tuple[np.ndarray, np.ndarray]:
-        values = getattr(p, name)
-        return values[1:1 + p.num_boxes], values[1 + p.num_boxes:]
-
-    attrs = {}
-    for name in ("material", "obj", "color"):
-        box_rows = [rows(p, name)[0] for p in parts]
-        sphere_rows = [rows(p, name)[1] for p in parts]
-        attrs[name] = np.concatenate([getattr(parts[0], name)[:1]] + box_rows + sphere_rows)
-    return Primitives(
-        box_center=np.concatenate([p.box_center for p in parts]).reshape(-1, 3),
-        box_rot=np.concatenate([p.box_rot for p in parts]).reshape(-1, 3, 3),
-        box_half=np.concatenate([p.box_half for p in parts]).reshape(-1, 3),
-        sphere_center=np.concatenate([p.sphere_center for p in parts]).reshape(-1, 3),
-        sphere_radius=np.concatenate([p.sphere_radius for p in parts]).reshape(-1),
-        **attrs)
-
-
 @dataclass(frozen=True)
 class Hits:
     """First hits of a ray grid.
