@@ -54,6 +54,20 @@ def atomic_save_npy(path: str | os.PathLike, array: np.ndarray) -> Path:
     return atomic_write_bytes(path, buffer.getvalue())
 
 
+def atomic_save_torch(path: str | os.PathLike, obj: Any) -> int:
+    """``torch.save`` ``obj`` to ``path`` through a temporary file; returns the size in bytes.
+
+    torch is imported here only, so that the scene tools that use this module do not load it.
+    """
+    import torch
+
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    data = buffer.getvalue()
+    atomic_write_bytes(path, data)
+    return len(data)
+
+
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path`` in one rename.

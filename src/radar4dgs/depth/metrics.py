@@ -99,13 +99,13 @@ def score_frames(scene, depths: Sequence[np.ndarray], skies: Sequence[np.ndarray
     result: dict = {"depth_absrel": None, "depth_rmse": None, "depth_delta1": None, "depth_coverage": None,
                     "scale_error_median": None, "sky_iou": None}
     if scene.has("gt/depth"):
-        errors = [frame_depth_errors(d, scene.load_optional("gt/depth", i)) for i, d in enumerate(depths)]
+        truths = [scene.load_optional("gt/depth", i) for i in range(len(depths))]
+        errors = [frame_depth_errors(d, g) for d, g in zip(depths, truths)]
         result["depth_absrel"] = _mean([e["absrel"] for e in errors])
         result["depth_rmse"] = _mean([e["rmse"] for e in errors])
         result["depth_delta1"] = _mean([e["delta1"] for e in errors])
         result["depth_coverage"] = _mean([e["coverage"] for e in errors])
         result["depth_absrel_frames"] = [e["absrel"] for e in errors]
-        truths = [scene.load_optional("gt/depth", i) for i in range(len(depths))]
         result["depth_ratio_jitter"] = ratio_jitter([_median_ratio(d, g) for d, g in zip(depths, truths)])
         result["depth_ratio_jitter_dynamic"] = None
         if scene.has("gt/dynamic_mask"):
@@ -113,8 +113,7 @@ def score_frames(scene, depths: Sequence[np.ndarray], skies: Sequence[np.ndarray
                 [_median_ratio(d, g, np.asarray(scene.load_optional("gt/dynamic_mask", i)) > 0)
                  for i, (d, g) in enumerate(zip(depths, truths))])
         if relatives is not None and scales is not None:
-            scale_errors = [frame_scale_error(x, scene.load_optional("gt/depth", i), a)
-                            for i, (x, a) in enumerate(zip(relatives, scales))]
+            scale_errors = [frame_scale_error(x, g, a) for x, g, a in zip(relatives, truths, scales)]
             if all(e is not None for e in scale_errors):
                 result["scale_error_median"] = float(np.median(scale_errors))
     if skies is not None and scene.has("gt/sky_mask"):

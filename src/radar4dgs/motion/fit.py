@@ -379,13 +379,10 @@ def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None,
 
 def save_field(deformation: DeformationField, path: str | Path) -> Path:
     """Save the field's state dict and its :class:`FieldConfig` (atomically) to ``path``."""
-    import io
+    from radar4dgs.data.atomic import atomic_save_torch
 
-    from radar4dgs.data.atomic import atomic_write_bytes
-
-    buffer = io.BytesIO()
-    torch.save({"field_config": to_dict(deformation.config), "state_dict": deformation.state_dict()}, buffer)
-    return atomic_write_bytes(path, buffer.getvalue())
+    atomic_save_torch(path, {"field_config": to_dict(deformation.config), "state_dict": deformation.state_dict()})
+    return Path(path)
 
 
 def load_field(path: str | Path, device: str = "cpu") -> DeformationField:

@@ -122,8 +122,6 @@ def dis_flow(image_a: np.ndarray, image_b: np.ndarray, preset: str = "medium", d
     Returns:
         (H, W, 2) float32 flow, ``image_a[v, u] ~ image_b[v + dv, u + du]``.
     """
-    import cv2
-
     if dis is None:
         dis = make_dis(preset)
     return dis.calc(to_gray(image_a), to_gray(image_b), None).astype(np.float32, copy=False)
@@ -518,10 +516,12 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pairs = frame_pairs(scene, config.skip_test_frames)
-    # Fail before any work when an input folder is missing.
+    cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    # Load the first frame up front, so a missing input folder fails before any flow is computed.
     if pairs:
-        load_depth(scene, pairs[0][0], config.depth_source, prepared_dir, depth_dir)
-        load_mask(scene, pairs[0][0], config.mask_source, prepared_dir, mask_dir)
+        first = pairs[0][0]
+        cache[first] = (load_depth(scene, first, config.depth_source, prepared_dir, depth_dir),
+                        load_mask(scene, first, config.mask_source, prepared_dir, mask_dir))
     estimator = FlowEstimator(config)
     K = scene.camera.K
     iterator: Iterable = pairs
@@ -533,7 +533,6 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
         iterator = progress(pairs)
     per_pair = []
     flow_seconds = 0.0
-    cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for i, j in iterator:
         image_i, image_j = scene.load_image(i), scene.load_image(j)
         started = time.perf_counter()

@@ -186,9 +186,9 @@ def radar_features(radar: RadarFrame, boxes: np.ndarray, anchors: np.ndarray, ma
     k = len(boxes)
     features = np.zeros((k, max_points, NUM_RADAR_FEATURES), np.float32)
     valid = np.zeros((k, max_points), bool)
+    pix = pixel_index(radar.uv)
     for row, (box, anchor) in enumerate(zip(boxes, anchors)):
         side = float(box[2] - box[0])
-        pix = pixel_index(radar.uv)
         inside = np.flatnonzero((pix[:, 0] >= box[0]) & (pix[:, 0] < box[2]) & (pix[:, 1] >= box[1]) & (pix[:, 1] < box[3]))
         offset = radar.uv[inside] - radar.uv[anchor]
         if len(inside) > max_points:

@@ -16,7 +16,6 @@ with ``--segment.checkpoint``), ``history.json`` (loss and validation IoU per ep
 
 from __future__ import annotations
 
-import io
 import math
 import time
 from dataclasses import dataclass, field
@@ -28,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from radar4dgs.config import save_config, to_dict
-from radar4dgs.data.atomic import atomic_write_bytes, atomic_write_json
+from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.segment.dataset import DynamicSource, TrainFrame
 from radar4dgs.segment.infer import SegInferConfig, frame_rng, image_tensor, patch_batch, segment_frame
 from radar4dgs.segment.model import (RadarCameraSegNet, SegModelConfig, checkpoint_payload, count_parameters,
@@ -185,9 +184,7 @@ def validation_iou(model: RadarCameraSegNet, frames: list[TrainFrame], config: S
 
 
 def _save_torch(path: Path, payload: dict) -> None:
-    buffer = io.BytesIO()
-    torch.save(payload, buffer)
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_save_torch(path, payload)
 
 
 @dataclass
@@ -246,7 +243,6 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
             if not items:
                 continue
             patches, points, valid, target = (torch.cat(parts) for parts in zip(*items))
-            # Pad the point sets of different frames to one P (radar_features already pads to max_points).
             terms = segmentation_loss(model(patches, points, valid), target, config.dice_weight)
             if not torch.isfinite(terms["total"]):
                 raise FloatingPointError(f"non-finite loss at step {state.step}: "
@@ -289,10 +285,8 @@ def export_weights(checkpoint: Path, out: Path, card: Path, card_extra: dict | N
     model = model_from_checkpoint(payload)
     keep = {k: payload[k] for k in ("epoch", "val_iou", "train_config", "synth_seeds", "validation_seeds",
                                     "scenes") if k in payload}
-    buffer = io.BytesIO()
-    torch.save(checkpoint_payload(model, half=True, **keep), buffer)
-    atomic_write_bytes(out, buffer.getvalue())
-    info = {"file": out.name, "bytes": len(buffer.getvalue()), "dtype": "float16",
+    size = atomic_save_torch(out, checkpoint_payload(model, half=True, **keep))
+    info = {"file": out.name, "bytes": size, "dtype": "float16",
             "parameters": count_parameters(model), "model_config": payload["model_config"],
             "training": {"epochs_completed": payload.get("epoch"), "best_val_iou": payload.get("val_iou"),
                          "synth_seeds": payload.get("synth_seeds", []),
