@@ -79,7 +79,7 @@ def timing(scene, masks, config, repeats: int = 3) -> dict:
     """Scale recovery time per frame (s): every frame ``repeats`` times, both methods; and the
     one-off direction index build."""
     from radar4dgs.depth import recover_scale
-    from radar4dgs.depth.geometry import DirectionIndex, scene_radar_to_camera, transform_points
+    from radar4dgs.depth.geometry import DirectionIndex, transform_points
     from radar4dgs.depth.sources import to_inverse
 
     camera = scene.camera
@@ -91,7 +91,7 @@ def timing(scene, masks, config, repeats: int = 3) -> dict:
         times = []
         for i in range(len(scene)):
             x = to_inverse(scene.load_optional("priors/mono_depth", i), "inverse-depth")
-            points = transform_points(scene_radar_to_camera(scene, i), scene.load_radar(i).xyz)
+            points = transform_points(scene.radar_to_camera(i), scene.load_radar(i).xyz)
             for _ in range(repeats):
                 start = time.perf_counter()
                 recover_scale(x, points, camera.K, config, method, masks[i], None, index,
@@ -108,14 +108,14 @@ def figure(scene, masks, config, frame: int, path: Path) -> None:
 
     from radar4dgs.data.atomic import atomic_write_bytes
     from radar4dgs.depth import recover_scale
-    from radar4dgs.depth.geometry import scene_radar_to_camera, transform_points
+    from radar4dgs.depth.geometry import transform_points
     from radar4dgs.depth.pipeline import render_frame, sky_prior
     from radar4dgs.depth.scale import FrameParameters, frame_confidences
     from radar4dgs.depth.sources import to_inverse
     from radar4dgs.depth.visualize import depth_figure
 
     x = to_inverse(scene.load_optional("priors/mono_depth", frame), "inverse-depth")
-    points = transform_points(scene_radar_to_camera(scene, frame), scene.load_radar(frame).xyz)
+    points = transform_points(scene.radar_to_camera(frame), scene.load_radar(frame).xyz)
     image = scene.load_image(frame)
     truth = scene.load_optional("gt/depth", frame)
     rows = []

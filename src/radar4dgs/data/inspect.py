@@ -27,14 +27,10 @@ def pose_speeds(scene: Scene) -> np.ndarray:
 
 
 def radar_points_in_camera(scene: Scene, index: int, xyz_radar: np.ndarray) -> np.ndarray:
-    """(N, 3) radar-frame points of frame ``index`` in that frame's camera axes (OpenCV).
-
-    Goes through the world so that a radar captured at another time than the camera (its own ego
-    pose) lands where it should.
-    """
-    homogeneous = np.concatenate([xyz_radar, np.ones((len(xyz_radar), 1))], axis=1)
-    radar_to_camera = scene.world_to_camera(index) @ scene.radar_to_world(index)
-    return (homogeneous @ radar_to_camera.T)[:, :3]
+    """(N, 3) radar-frame points of frame ``index`` in that frame's camera axes (OpenCV), through
+    :meth:`Scene.radar_to_camera`."""
+    transform = scene.radar_to_camera(index)
+    return np.asarray(xyz_radar, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
 
 
 def summarize_scene(scene: Scene) -> dict[str, Any]:

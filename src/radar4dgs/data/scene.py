@@ -261,6 +261,14 @@ class Scene:
         """(4, 4) radar-to-world transform at the radar's capture time of frame ``index``."""
         return self._frame(index).radar_ego_to_world @ self.radar.radar_to_ego
 
+    def radar_to_camera(self, index: int) -> np.ndarray:
+        """(4, 4) radar frame to the camera (OpenCV axes) of frame ``index``.
+
+        Goes through the world, so a radar captured at another time than the camera (its own
+        ``radar_ego_to_world``) lands where it should.
+        """
+        return self.world_to_camera(index) @ self.radar_to_world(index)
+
 
 # --------------------------------------------------------------------------------------------
 # Reading

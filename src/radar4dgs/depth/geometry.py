@@ -21,13 +21,6 @@ def radar_to_camera(cam_to_ego: np.ndarray, radar_to_ego: np.ndarray, ego_to_wor
     return np.linalg.inv(cam_to_ego) @ ego_cam_from_ego_radar @ radar_to_ego
 
 
-def scene_radar_to_camera(scene, index: int) -> np.ndarray:
-    """(4, 4) radar-to-camera transform of frame ``index`` of a :class:`~radar4dgs.data.scene.Scene`."""
-    frame = scene.frames[index]
-    return radar_to_camera(scene.camera.cam_to_ego, scene.radar.radar_to_ego, frame.ego_to_world,
-                           frame.radar_ego_to_world)
-
-
 def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a (4, 4) transform to (N, 3) points; returns (N, 3) float64."""
     points = np.asarray(points, dtype=np.float64)

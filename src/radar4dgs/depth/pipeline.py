@@ -27,7 +27,7 @@ from PIL import Image
 from radar4dgs.config import save_config, to_dict
 from radar4dgs.data.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
-from radar4dgs.depth.geometry import DirectionIndex, scene_radar_to_camera, transform_points
+from radar4dgs.depth.geometry import DirectionIndex, transform_points
 from radar4dgs.depth.scale import (DYNAMIC, DepthWarning, FrameFit, FrameParameters, confidence_map, fill_from_neighbours,
                                    frame_confidences, metric_depth, recover_scale,
                                    temporal_refine)
@@ -56,17 +56,15 @@ def static_mask(scene, index: int, num_points: int, radar_dir: str | Path | None
             with np.load(path, allow_pickle=False) as data:
                 if "dynamic" in data.files and data["dynamic"].shape == (num_points,):
                     return ~data["dynamic"].astype(bool), "prepared radar"
-    try:
-        from radar4dgs.radar import classify_dynamic, estimate_ego_motion
-    except ImportError:
-        return np.ones(num_points, bool), "all points (radar front end unavailable)"
+    from radar4dgs.radar import classify_dynamic, estimate_ego_motion
+
     if scan is None:
         scan = scene.load_radar(index)
     if len(scan) == 0:
         return np.ones(0, bool), "radar front end"
     ego = estimate_ego_motion(scan.xyz, scan.v_r)
-    if not getattr(ego, "ok", True):
-        return np.ones(num_points, bool), f"all points (ego-motion failed: {getattr(ego, 'reason', '')})"
+    if not ego.ok:
+        return np.ones(num_points, bool), f"all points (ego-motion failed: {ego.reason})"
     is_dynamic, _ = classify_dynamic(scan.xyz, scan.v_r, ego)
     return ~np.asarray(is_dynamic, dtype=bool), "radar front end"
 
@@ -153,7 +151,7 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
         else:
             static, source = static_mask(scene, i, len(scan), radar_dir, scan)
         info["static_sources"].append(source)
-        points = transform_points(scene_radar_to_camera(scene, i), scan.xyz)
+        points = transform_points(scene.radar_to_camera(i), scan.xyz)
         sky = sky_prior(scene, i, config)
         start = time.perf_counter()
         fit = recover_scale(x, points, camera.K, config, method, static, sky, index,

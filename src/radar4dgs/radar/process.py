@@ -109,7 +109,7 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
                   inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32))
         frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
                        "points": int(len(xyz)), "inliers": int(fit.inliers.sum()),
-                       "dynamic": int(dynamic.sum()), "speed": _finite_or_none(float(np.linalg.norm(used.velocity))),
+                       "dynamic": int(dynamic.sum()), "speed": _finite_or_none(used.speed),
                        "velocity": [_finite_or_none(x) for x in used.velocity],
                        "residual_std": _finite_or_none(fit.residual_std), "dof": fit.dof,
                        "iterations": fit.iterations})
