@@ -58,14 +58,12 @@ class DemoCommand:
         print("    " + format_report(report).replace("\n", "\n    "))
         print(f"    written to {self.out / 'frontend_metrics.json'}")
 
-        from radar4dgs.motion.fit import MotionConfig, run_fit, save_field
+        from radar4dgs.motion.fit import MotionConfig, run_fit, write_motion_outputs
 
         print("[5] fit the VGPT deformation field to the dynamic points (flow + radar)")
-        motion_dir = self.out / "motion"
-        field, result = run_fit(scene, prepared, preset(MotionConfig, self.preset), evaluate=True)
-        motion_dir.mkdir(parents=True, exist_ok=True)
-        save_field(field, motion_dir / "field.pt")
-        atomic_write_json(motion_dir / "results.json", result)
+        motion_config = preset(MotionConfig, self.preset)
+        field, result = run_fit(scene, prepared, motion_config, evaluate=True)
+        write_motion_outputs(self.out / "motion", field, result, motion_config)
         flow_metrics = result.get("sceneflow") or {}
         if flow_metrics.get("epe") is not None:
             print(f"    dynamic scene-flow end-point error {flow_metrics['epe']:.3f} m "

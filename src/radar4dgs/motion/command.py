@@ -9,7 +9,7 @@ from typing import ClassVar, Optional
 
 import tyro
 
-from radar4dgs.config import PresetName, save_config
+from radar4dgs.config import PresetName
 from radar4dgs.motion.fit import MotionConfig
 
 
@@ -39,9 +39,8 @@ class FitMotionCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": MotionConfig}
 
     def run(self) -> int:
-        from radar4dgs.data.atomic import atomic_write_json
         from radar4dgs.data.scene import SceneError, read_scene
-        from radar4dgs.motion.fit import run_fit, save_field
+        from radar4dgs.motion.fit import run_fit, write_motion_outputs
 
         prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
         out = self.out if self.out is not None else prepared / "motion"
@@ -54,10 +53,7 @@ class FitMotionCommand:
         except (SceneError, FileNotFoundError, ValueError) as exc:
             print(f"radar4dgs fit-motion: {exc}", file=sys.stderr)
             return 1
-        out.mkdir(parents=True, exist_ok=True)
-        save_config(self.config, out / "config.json")
-        save_field(deformation, out / "field.pt")
-        atomic_write_json(out / "results.json", result)
+        write_motion_outputs(out, deformation, result, self.config)
         terms = " + ".join(name for name, on in (("flow", self.use_flow), ("radar", self.use_radar)) if on)
         print(f"fit ({terms}) in {result['fit_seconds']:.1f} s")
         metrics = result.get("sceneflow")

@@ -385,6 +385,20 @@ def save_field(deformation: DeformationField, path: str | Path) -> Path:
     return Path(path)
 
 
+def write_motion_outputs(out: str | Path, deformation: DeformationField, result: dict,
+                         config: MotionConfig) -> Path:
+    """Write a fit's ``config.json``, ``field.pt`` and ``results.json`` into ``out`` (atomically each)."""
+    from radar4dgs.config import save_config
+    from radar4dgs.data.atomic import atomic_write_json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(config, out / "config.json")
+    save_field(deformation, out / "field.pt")
+    atomic_write_json(out / "results.json", result)
+    return out
+
+
 def load_field(path: str | Path, device: str = "cpu") -> DeformationField:
     """A field saved by :func:`save_field`."""
     from radar4dgs.config import from_dict
