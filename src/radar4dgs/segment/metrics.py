@@ -84,15 +84,23 @@ def _read_mask(path: Path) -> np.ndarray:
         return np.asarray(image.convert("L")) > 127
 
 
-def mask_scores(scene: Scene, masks: list[np.ndarray]) -> dict[str, Any]:
-    """``mask_iou``, ``static_vehicle_fp`` and pixel counts of per-frame (H, W) bool masks."""
+def ground_truth_masks(scene: Scene, count: int) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
+    """The first ``count`` frames' gt dynamic masks and parked-car pixels (:func:`parked_car_pixels`),
+    computed once so that several methods can be scored against them."""
+    return ([scene.load_optional("gt/dynamic_mask", i) for i in range(count)],
+            [parked_car_pixels(scene, i) for i in range(count)])
+
+
+def mask_scores(scene: Scene, masks: list[np.ndarray],
+                truth: tuple[list[np.ndarray], list[np.ndarray | None]] | None = None) -> dict[str, Any]:
+    """``mask_iou``, ``static_vehicle_fp`` and pixel counts of per-frame (H, W) bool masks;
+    ``truth`` is :func:`ground_truth_masks` when the caller already has it."""
+    gts, parked_cars = truth if truth is not None else ground_truth_masks(scene, len(masks))
     inter = union = parked = parked_marked = 0
     has_parked = True
-    for i, pred in enumerate(masks):
-        gt = scene.load_optional("gt/dynamic_mask", i)
+    for pred, gt, cars in zip(masks, gts, parked_cars):
         inter += int((pred & gt).sum())
         union += int((pred | gt).sum())
-        cars = parked_car_pixels(scene, i)
         if cars is None:
             has_parked = False
             continue
@@ -123,11 +131,12 @@ def segmentation_frontend_metrics(scene: Scene, prepared_dir: str | Path | None,
         start = time.perf_counter()
         model_masks = [r.mask(config.threshold) for _, r in segment_scene(scene, prepared, config)]
         seconds, source = (time.perf_counter() - start) / max(len(scene), 1), "computed (shipped or given checkpoint)"
-    result["model"] = {**mask_scores(scene, model_masks), "source": source, "seconds_per_frame": seconds}
+    truth = ground_truth_masks(scene, len(scene))
+    result["model"] = {**mask_scores(scene, model_masks, truth), "source": source, "seconds_per_frame": seconds}
     start = time.perf_counter()
     baseline_config = SegInferConfig(method="baseline", dynamic_source=config.dynamic_source)
     baseline_masks = [r.mask(0.5) for _, r in segment_scene(scene, prepared, baseline_config)]
-    result["baseline"] = {**mask_scores(scene, baseline_masks), "source": "radar-prompted flood fill",
+    result["baseline"] = {**mask_scores(scene, baseline_masks, truth), "source": "radar-prompted flood fill",
                           "seconds_per_frame": (time.perf_counter() - start) / max(len(scene), 1)}
     result["mask_iou"] = result["model"]["mask_iou"]
     result["static_vehicle_fp"] = result["model"]["static_vehicle_fp"]
