@@ -84,13 +84,21 @@ class FrameDepth:
     sky_source: str
 
 
-def sky_prior(scene, index: int, config: DepthConfig) -> np.ndarray | None:
-    """The scene's sky mask for frame ``index`` when the configuration uses it, else None."""
-    if config.sky_source == "prior" and not scene.has("priors/sky_mask"):
+def uses_sky_prior(scene, config: DepthConfig) -> bool:
+    """Whether the configuration takes the sky from ``priors/sky_mask`` (decided once per scene:
+    ``scene.has`` checks every frame's file)."""
+    has_prior = config.sky_source in ("prior", "auto") and scene.has("priors/sky_mask")
+    if config.sky_source == "prior" and not has_prior:
         raise FileNotFoundError(f"{scene.root}: sky_source 'prior' needs a complete priors/sky_mask/ folder")
-    if config.sky_source in ("prior", "auto") and scene.has("priors/sky_mask"):
-        return scene.load_optional("priors/sky_mask", index)
-    return None
+    return has_prior
+
+
+def sky_prior(scene, index: int, config: DepthConfig, use_prior: bool | None = None) -> np.ndarray | None:
+    """The scene's sky mask for frame ``index`` when the configuration uses it, else None;
+    ``use_prior`` is :func:`uses_sky_prior` when the caller already has it."""
+    if use_prior is None:
+        use_prior = uses_sky_prior(scene, config)
+    return scene.load_optional("priors/sky_mask", index) if use_prior else None
 
 
 def render_frame(x: np.ndarray, image: np.ndarray | None, parameters: FrameParameters, confidence: float,
@@ -142,6 +150,7 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
     info: dict[str, Any] = {"direction_index_s": time.perf_counter() - start, "static_sources": [],
                             "scale_recovery_s": []}
     fits: list[FrameFit] = []
+    use_sky_prior = uses_sky_prior(scene, config)
     for i in _progress(range(len(scene)), progress, "depth: scale recovery"):
         x = inverse_depth(i)
         scan = scene.load_radar(i)
@@ -152,7 +161,7 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
             static, source = static_mask(scene, i, len(scan), radar_dir, scan)
         info["static_sources"].append(source)
         points = transform_points(scene.radar_to_camera(i), scan.xyz)
-        sky = sky_prior(scene, i, config)
+        sky = sky_prior(scene, i, config, use_sky_prior)
         start = time.perf_counter()
         fit = recover_scale(x, points, camera.K, config, method, static, sky, index,
                             np.random.default_rng(config.seed + i))
@@ -276,9 +285,10 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
     fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir, progress)
     frame_conf = frame_confidences(fits, parameters, config)
     entries = []
+    use_sky_prior = uses_sky_prior(scene, config)
     for i in _progress(range(len(scene)), progress, "depth: metric depth and sky"):
         x = np.load(relative_dir / f"{names[i]}.npy")
-        prior_sky = sky_prior(scene, i, config)
+        prior_sky = sky_prior(scene, i, config, use_sky_prior)
         image = scene.load_image(i) if prior_sky is None and config.sky_source != "none" else None
         frame = render_frame(x, image, parameters[i], *frame_conf[i], config, prior_sky)
         np.save(depth_dir / f"{names[i]}.npy", frame.depth)
@@ -341,12 +351,13 @@ def evaluate_depth_methods(scene, config: DepthConfig | None = None, methods: Se
         return cache[i]
 
     results = {}
+    use_sky_prior = uses_sky_prior(scene, config)
     for method in methods:
         fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir)
         frame_conf = frame_confidences(fits, parameters, config)
         frames = []
         for i in range(len(scene)):
-            prior_sky = sky_prior(scene, i, config)
+            prior_sky = sky_prior(scene, i, config, use_sky_prior)
             image = scene.load_image(i) if prior_sky is None and config.sky_source != "none" else None
             frames.append(render_frame(inverse_depth(i), image, parameters[i], *frame_conf[i], config, prior_sky))
         metrics = score_frames(scene, [f.depth for f in frames], [f.sky for f in frames],
