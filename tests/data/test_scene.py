@@ -267,6 +267,18 @@ def test_nan_radar_rows_are_dropped_with_a_counting_warning(scene_copy):
     assert len(scan) == 4 and np.isfinite(scan.xyz).all()
 
 
+def test_per_row_labels_align_with_the_rows_kept_on_load(scene_copy):
+    points = np.ones((5, 5), np.float32)
+    points[[1, 3], 2] = np.nan
+    np.save(scene_copy / "radar" / "000001.npy", points)
+    with pytest.warns(SceneWarning):
+        scan = read_scene(scene_copy).load_radar(1)
+    labels = np.array([0, 1, -1, 1, 0], np.int8)
+    np.testing.assert_array_equal(scan.align(labels, "labels.npy"), [0, -1, 0])
+    with pytest.raises(SceneError, match=r"labels\.npy: 4 entries for 5 stored radar rows"):
+        scan.align(labels[:4], "labels.npy")
+
+
 def test_empty_radar_frame_is_allowed_and_warned(scene_copy):
     np.save(scene_copy / "radar" / "000000.npy", np.zeros((0, 5), np.float32))
     scene = read_scene(scene_copy)

@@ -120,10 +120,24 @@ class Frame:
 
 @dataclass(frozen=True)
 class RadarScan:
-    """One radar frame: ``data`` (N, F) float32 in the radar frame, columns named by ``fields``."""
+    """One radar frame: ``data`` (N, F) float32 in the radar frame, columns named by ``fields``.
+
+    ``rows`` (N,) are the indices of these points among the ``stored`` rows of the file (rows with
+    NaN are dropped on load), so per-row files such as ``gt/radar_labels`` can be aligned.
+    """
 
     data: np.ndarray
     fields: tuple[str, ...]
+    rows: np.ndarray | None = None
+    stored: int | None = None
+
+    def align(self, per_stored_row: np.ndarray, path: Path | str) -> np.ndarray:
+        """The entries of an array with one entry per stored row (``gt/radar_labels``) that belong
+        to this scan's points; a :class:`SceneError` naming ``path`` when the counts disagree."""
+        stored = len(self) if self.stored is None else self.stored
+        if len(per_stored_row) != stored:
+            raise SceneError(path, f"{len(per_stored_row)} entries for {stored} stored radar rows")
+        return per_stored_row if self.rows is None else per_stored_row[self.rows]
 
     def __len__(self) -> int:
         return int(self.data.shape[0])
@@ -222,13 +236,14 @@ class Scene:
         data = data.astype(np.float32, copy=False)
         required = [self.radar.fields.index(name) for name in REQUIRED_RADAR_FIELDS]
         finite = np.isfinite(data[:, required]).all(axis=1)
+        stored = len(data)
         if not finite.all():
-            warnings.warn(f"{path}: dropped {int((~finite).sum())} of {len(data)} radar rows with NaN or "
+            warnings.warn(f"{path}: dropped {int((~finite).sum())} of {stored} radar rows with NaN or "
                           f"inf in x, y, z or v_r", SceneWarning, stacklevel=2)
             data = data[finite]
         if len(data) == 0:
             warnings.warn(f"{path}: empty radar frame", SceneWarning, stacklevel=2)
-        return RadarScan(np.ascontiguousarray(data), self.radar.fields)
+        return RadarScan(np.ascontiguousarray(data), self.radar.fields, np.flatnonzero(finite), stored)
 
     def load_optional(self, folder: str, index: int) -> np.ndarray:
         """Array of optional ``folder`` for frame ``index``; masks come back as bool (H, W)."""

@@ -44,18 +44,6 @@ def _ratio(num: int, den: int) -> float | None:
     return float(num / den) if den > 0 else None
 
 
-def _align_labels(scene: Scene, index: int, labels: np.ndarray, rows: int) -> np.ndarray:
-    """Labels are written per stored row; ``load_radar`` drops rows with NaN. Drop the same rows."""
-    name = scene.frames[index].name
-    raw = np.load(scene.root / "radar" / f"{name}.npy", allow_pickle=False)
-    required = [scene.radar.fields.index(f) for f in ("x", "y", "z", "v_r")]
-    keep = np.isfinite(raw[:, required]).all(axis=1)
-    if len(labels) != len(raw) or int(keep.sum()) != rows:
-        raise SceneError(scene.root / "gt" / "radar_labels" / f"{name}.npy",
-                         f"{len(labels)} labels for {len(raw)} stored radar rows")
-    return labels[keep]
-
-
 def evaluate_radar(scene: Scene, prepared_dir: str | Path) -> dict:
     """Radar front-end metrics (module doc) of ``<prepared_dir>/radar`` for ``scene``."""
     radar_dir = Path(prepared_dir) / "radar"
@@ -92,9 +80,8 @@ def evaluate_radar(scene: Scene, prepared_dir: str | Path) -> dict:
         d, _ = unit_directions(xyz)
         dynamic = out["dynamic"].astype(bool)
         if has_labels:
-            labels = scene.load_optional("gt/radar_labels", i)
-            if len(labels) != len(scan):
-                labels = _align_labels(scene, i, labels, len(scan))
+            labels = scan.align(scene.load_optional("gt/radar_labels", i),
+                                scene.root / "gt" / "radar_labels" / f"{scene.frames[i].name}.npy")
             static = labels == 0
             moving = labels == 1
             v_ref = truth[i] if truth is not None else v_est
