@@ -113,6 +113,15 @@ def poses_from_radar(timestamps: np.ndarray, radar_velocities: np.ndarray, radar
 
     ``radar_velocities`` (T, 3) may hold NaN rows (failed fits): they are interpolated in time.
     """
+    v, w, info = ego_rates_from_radar(timestamps, radar_velocities, radar_to_ego, yaw_rate, align_heading)
+    return integrate_poses(np.asarray(timestamps, dtype=np.float64), v, w), info
+
+
+def ego_rates_from_radar(timestamps: np.ndarray, radar_velocities: np.ndarray, radar_to_ego: np.ndarray,
+                         yaw_rate: bool = True, align_heading: bool = False
+                         ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The ego velocity (T, 3) and yaw rate (T,) that :func:`poses_from_radar` integrates, and its
+    model description; for callers that need the rates themselves (box velocities, say)."""
     timestamps = np.asarray(timestamps, dtype=np.float64)
     filled = fill_gaps(timestamps, radar_velocities)
     if not np.all(np.isfinite(filled)):
@@ -125,7 +134,7 @@ def poses_from_radar(timestamps: np.ndarray, radar_velocities: np.ndarray, radar
             "heading_correction_deg": math.degrees(correction),
             "filled_frames": int((~np.all(np.isfinite(radar_velocities), axis=1)).sum()),
             "mean_yaw_rate": float(np.mean(w))}
-    return integrate_poses(timestamps, v, w), info
+    return v, w, info
 
 
 def _pose_rates(timestamps: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -37,8 +37,10 @@ import tyro
 from tqdm import tqdm
 
 from radar4dgs.data.scene import Camera, Frame, RadarSpec, SceneError, SceneWriter
+from radar4dgs.data.synth.camera import CV_TO_EGO
+from radar4dgs.data.synth.radar import spherical_to_xyz
 from radar4dgs.radar.config import RadarConfig
-from radar4dgs.radar.poses import ego_motion_from_radar, poses_from_radar
+from radar4dgs.radar.poses import ego_rates_from_radar, integrate_poses
 from radar4dgs.radar.process import fit_frames, smooth_velocities
 
 CAMERA = "F_MIDLONGRANGECAM_CL"
@@ -83,10 +85,9 @@ def opencv_axes(cam_to_body: np.ndarray, path: Path) -> np.ndarray:
     if R[0, 2] > 0.7 and R[2, 1] < -0.7:
         return cam_to_body
     if R[0, 0] > 0.7 and R[2, 2] > 0.7:
-        # Columns of OpenCV axes expressed in x-forward/y-left/z-up camera axes.
-        flu_from_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+        # CV_TO_EGO: columns of OpenCV axes expressed in x-forward/y-left/z-up axes.
         out = cam_to_body.copy()
-        out[:3, :3] = R @ flu_from_cv
+        out[:3, :3] = R @ CV_TO_EGO
         return out
     raise SceneError(path, f"camera axes not recognised (rotation {R.round(3).tolist()})")
 
@@ -101,7 +102,7 @@ def radar_points(targets: list[dict], path: Path) -> np.ndarray:
     except (KeyError, TypeError, ValueError) as exc:
         raise SceneError(path, f"radar target without a numeric {exc}") from None
     az, el, r = cols["azimuth"], cols["elevation"], cols["range"]
-    xyz = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=1)
+    xyz = spherical_to_xyz(r, az, el)
     return np.column_stack([xyz, cols["speed"], cols["rcs"], cols["power"]]).astype(np.float32)
 
 
@@ -215,10 +216,9 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
     fits = fit_frames([(s[:, :3].astype(np.float64), s[:, 3].astype(np.float64)) for s in scans], config,
                       radar_to_ego=radar_to_ego)
     velocities = smooth_velocities(stamps, fits, config)
-    poses, pose_info = poses_from_radar(stamps, velocities, radar_to_ego, yaw_rate=True,
-                                        align_heading=align_heading)
-    correction = math.radians(pose_info["heading_correction_deg"])
-    ego_v, yaw = ego_motion_from_radar(velocities, radar_to_ego, True, correction)
+    ego_v, yaw, pose_info = ego_rates_from_radar(stamps, velocities, radar_to_ego, yaw_rate=True,
+                                                 align_heading=align_heading)
+    poses = integrate_poses(stamps, ego_v, yaw)
 
     source = {
         "dataset": "aimotive", "sensors": {"camera": CAMERA, "radar": RADAR}, "path": str(src),
