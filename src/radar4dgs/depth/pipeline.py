@@ -133,20 +133,23 @@ def render_frame(x: np.ndarray, image: np.ndarray | None, parameters: FrameParam
 
 def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.ndarray], method: str,
                static_masks: Sequence[np.ndarray | None] | None = None, radar_dir: str | Path | None = None,
-               progress: bool | Callable = False) -> tuple[list[FrameFit], list[FrameParameters], dict]:
+               progress: bool | Callable = False, index: DirectionIndex | None = None
+               ) -> tuple[list[FrameFit], list[FrameParameters], dict]:
     """Scale recovery on every frame, then the neighbour fallback.
 
     Args:
         inverse_depth: frame index -> (H, W) relative inverse depth.
         static_masks: per frame (N,) bool static masks (None entries or None: looked up with
             :func:`static_mask` in ``radar_dir``, the radar stage's folder).
+        index: the camera's :class:`DirectionIndex` when the caller already built it.
 
     Returns:
         fits, per-frame parameters and info (static-mask sources, timings).
     """
     camera = scene.camera
     start = time.perf_counter()
-    index = DirectionIndex(camera.K, camera.width, camera.height, config.visual_stride)
+    if index is None:
+        index = DirectionIndex(camera.K, camera.width, camera.height, config.visual_stride)
     info: dict[str, Any] = {"direction_index_s": time.perf_counter() - start, "static_sources": [],
                             "scale_recovery_s": []}
     fits: list[FrameFit] = []
@@ -350,10 +353,18 @@ def evaluate_depth_methods(scene, config: DepthConfig | None = None, methods: Se
                         else frame_inverse_depth(scene, i, source, kind, model))
         return cache[i]
 
+    # Shared by every method: the direction index and each frame's static radar points (a RANSAC
+    # per frame when the radar stage has not run).
+    camera = scene.camera
+    index = DirectionIndex(camera.K, camera.width, camera.height, config.visual_stride)
+    static_masks = [static_masks[i] if static_masks is not None and static_masks[i] is not None
+                    else static_mask(scene, i, len(scan), radar_dir, scan)[0]
+                    for i, scan in ((i, scene.load_radar(i)) for i in range(len(scene)))]
     results = {}
     use_sky_prior = uses_sky_prior(scene, config)
     for method in methods:
-        fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir)
+        fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir,
+                                            index=index)
         frame_conf = frame_confidences(fits, parameters, config)
         frames = []
         for i in range(len(scene)):
