@@ -253,16 +253,7 @@ class Scene:
         if not path.is_file():
             raise SceneError(path, f"missing file (the scene has no complete {folder}/ folder)")
         if path.suffix == ".png":
-            try:
-                with Image.open(path) as image:
-                    mask = np.asarray(image.convert("L"))
-            except Exception as exc:
-                raise SceneError(path, f"unreadable mask ({exc})") from exc
-            expected = (self.camera.height, self.camera.width)
-            if mask.shape != expected:
-                raise SceneError(path, f"mask is {mask.shape[1]}x{mask.shape[0]}, camera says "
-                                 f"{self.camera.width}x{self.camera.height}")
-            return mask > 127
+            return read_mask_png(path, (self.camera.height, self.camera.width))
         array = _load_npy(path)
         _check_optional_array(path, folder, array, self.camera)
         return array
@@ -287,6 +278,19 @@ class Scene:
 
 # --------------------------------------------------------------------------------------------
 # Reading
+
+
+def read_mask_png(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:
+    """(H, W) bool mask of a 0/255 PNG (values above 127 are set); a :class:`SceneError` naming the
+    file when it cannot be read or is not ``shape`` (H, W)."""
+    try:
+        with Image.open(path) as image:
+            mask = np.asarray(image.convert("L")) > 127
+    except Exception as exc:  # PIL raises many types for broken files
+        raise SceneError(path, f"unreadable mask ({exc})") from exc
+    if shape is not None and mask.shape != tuple(shape):
+        raise SceneError(path, f"mask is {mask.shape[1]}x{mask.shape[0]}, expected {shape[1]}x{shape[0]}")
+    return mask
 
 
 def _load_npy(path: Path, mmap_mode: str | None = None) -> np.ndarray:

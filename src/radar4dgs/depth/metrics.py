@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from PIL import Image
 
+from radar4dgs.data.scene import read_mask_png
 from radar4dgs.depth.sky import mask_iou
 
 # A frame counts as "pure scale" when its log depth ratios spread less than this (0.2 %).
@@ -127,10 +127,7 @@ def load_prepared(scene, prepared_dir: str | Path, index: int) -> tuple[np.ndarr
     name = scene.frames[index].name
     prepared = Path(prepared_dir)
     depth = np.load(prepared / "depth" / f"{name}.npy", allow_pickle=False)
-    sky_path = prepared / "depth" / "sky" / f"{name}.png"
-    with Image.open(sky_path) as image:
-        sky = np.asarray(image.convert("L")) > 127
-    return depth, sky
+    return depth, read_mask_png(prepared / "depth" / "sky" / f"{name}.png", depth.shape)
 
 
 def depth_frontend_metrics(scene, prepared_dir: str | Path) -> dict:

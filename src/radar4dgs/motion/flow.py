@@ -36,6 +36,7 @@ import numpy as np
 
 from radar4dgs.config import to_dict
 from radar4dgs.data.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from radar4dgs.data.scene import read_mask_png
 
 DIS_PRESETS = ("ultrafast", "fast", "medium")
 
@@ -452,20 +453,13 @@ def load_mask(scene, index: int, source: str, prepared_dir: str | Path | None,
         return scene.load_optional("gt/dynamic_mask", index)
     if source != "prepared":
         raise ValueError(f"unknown mask source {source!r}; choose 'prepared' or 'oracle'")
-    from PIL import Image
-
     folder = Path(mask_dir) if mask_dir is not None else Path(prepared_dir) / "masks"
     path = folder / f"{scene.frames[index].name}.png"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no prepared dynamic mask in {folder} (run the segmentation "
                                 f"front end first, or set mask_source='oracle' to use the scene's "
                                 f"gt/dynamic_mask)")
-    with Image.open(path) as image:
-        mask = np.asarray(image.convert("L")) > 127
-    if mask.shape != (scene.camera.height, scene.camera.width):
-        raise ValueError(f"{path}: mask has shape {mask.shape}, expected "
-                         f"{(scene.camera.height, scene.camera.width)}")
-    return mask
+    return read_mask_png(path, (scene.camera.height, scene.camera.width))
 
 
 def _npz_bytes(**arrays: np.ndarray) -> bytes:

@@ -20,9 +20,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
-from radar4dgs.data.scene import Scene
+from radar4dgs.data.scene import Scene, read_mask_png
 from radar4dgs.segment.infer import SegInferConfig, segment_scene
 
 # A box hit counts as the visible surface when it agrees with gt depth within this (relative + absolute).
@@ -79,11 +78,6 @@ def parked_car_pixels(scene: Scene, index: int) -> np.ndarray | None:
     return visible.reshape(height, width)
 
 
-def _read_mask(path: Path) -> np.ndarray:
-    with Image.open(path) as image:
-        return np.asarray(image.convert("L")) > 127
-
-
 def ground_truth_masks(scene: Scene, count: int) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
     """The first ``count`` frames' gt dynamic masks and parked-car pixels (:func:`parked_car_pixels`),
     computed once so that several methods can be scored against them."""
@@ -125,7 +119,7 @@ def segmentation_frontend_metrics(scene: Scene, prepared_dir: str | Path | None,
     files = [prepared / "masks" / f"{f.name}.png" for f in scene.frames] if prepared is not None else []
     result: dict[str, Any] = {}
     if files and all(p.is_file() for p in files):
-        model_masks, source = [_read_mask(p) for p in files], str(prepared / "masks")
+        model_masks, source = [read_mask_png(p) for p in files], str(prepared / "masks")
         seconds = None
     else:
         start = time.perf_counter()

@@ -24,10 +24,10 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 import torch
-from PIL import Image
 from scipy.spatial import cKDTree
 from torch import Tensor, nn
 
+from radar4dgs.data.scene import read_mask_png
 from radar4dgs.motion.fit import normalized_times
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
@@ -91,11 +91,7 @@ class GaussianInitConfig:
 def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing mask (run `radar4dgs prepare` first)")
-    with Image.open(path) as image:
-        mask = np.asarray(image.convert("L")) > 127
-    if mask.shape != shape:
-        raise ValueError(f"{path}: mask is {mask.shape[1]}x{mask.shape[0]}, expected {shape[1]}x{shape[0]}")
-    return mask
+    return read_mask_png(path, shape)
 
 
 def backproject_frame(scene, prepared_dir: Path | str, index: int, config: GaussianInitConfig,
