@@ -29,6 +29,7 @@ from torch import Tensor, nn
 
 from radar4dgs.data.scene import read_mask_png
 from radar4dgs.motion.fit import normalized_times
+from radar4dgs.motion.flow import backproject
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
 
@@ -117,11 +118,8 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
     if 0 < config.points_per_frame < len(u):
         chosen = np.sort(rng.choice(len(u), size=config.points_per_frame, replace=False))
         v, u = v[chosen], u[chosen]
-    z = depth[v, u]
-    K = np.asarray(scene.camera.K, dtype=np.float64)
-    x_cam = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
-    cam_to_world = np.linalg.inv(scene.world_to_camera(index))
-    points = x_cam @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
+    points = backproject(np.stack([u, v], axis=1).astype(np.float64), depth[v, u], scene.camera.K,
+                         scene.world_to_camera(index))
     image = scene.load_image(index)
     dynamic = _read_mask(prepared / "masks" / f"{name}.png", (H, W))
     return {
