@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, Optional
 
-DepthSource = Literal["auto", "prior", "depth-anything-v2", "oracle"]
+DepthSource = Literal["auto", "prior", "depth-anything-v2", "flat-world", "oracle"]
 PriorKind = Literal["auto", "inverse-depth", "depth"]
 ScaleMethod = Literal["auto", "affine", "paper"]
 SkySource = Literal["auto", "prior", "fallback", "none"]
@@ -23,13 +23,18 @@ class DepthConfig:
 
     # ---- depth source
     # "prior": <scene>/priors/mono_depth; "depth-anything-v2": run the network through HuggingFace
-    # transformers; "oracle": <scene>/gt/depth (ablation only, never for real results);
-    # "auto": "prior" when the scene has priors/mono_depth, else "depth-anything-v2".
+    # transformers; "flat-world": no network and no prior, the ground plane of the ego frame seen
+    # through the calibrated camera, capped by a wall at flat_world_far (already metric; right on
+    # the road only: a last resort, see radar4dgs.depth.flat_world); "oracle": <scene>/gt/depth
+    # (ablation only, never for real results); "auto": "prior" when the scene has
+    # priors/mono_depth, else "depth-anything-v2" when its weights are on this machine (or
+    # local_files_only is off), else "flat-world" (with a warning).
     source: DepthSource = "auto"
     # What the source's numbers are: "inverse-depth" (relative disparity, as Depth-Anything-V2's
     # relative models and priors/mono_depth), "depth" (depth up to scale, as metric networks and the
     # oracle); "auto": "depth" for the oracle and for Depth-Anything configs with
-    # depth_estimation_type == "metric", else "inverse-depth".
+    # depth_estimation_type == "metric", else "inverse-depth". Ignored by "flat-world", which
+    # always gives inverse depth.
     prior_kind: PriorKind = "auto"
     # HuggingFace model id or local folder holding config.json + weights + preprocessor_config.json.
     model: str = DEFAULT_DEPTH_ANYTHING
@@ -40,6 +45,18 @@ class DepthConfig:
     device: str = "auto"
     # Network compute dtype; float16 halves memory on a GPU (CPU always runs float32).
     dtype: Literal["float32", "float16", "bfloat16"] = "float32"
+    # "flat-world": the distance (m, along the optical axis) of the wall that closes the flat road:
+    # rays at or above the horizon, and ground farther than this, get it.
+    flat_world_far: float = 80.0
+    # "flat-world": height of the road in the ego frame (m); None = from lidar/ when the scene has
+    # it, else 0 (the scene format's ego origin is on the ground, as nuScenes').
+    flat_world_ground_z: Optional[float] = None
+    # "flat-world": a frame's radar fit is kept only when it changes the prior's depth by less
+    # than this fraction anywhere from the camera to the wall (a small camera height or pitch
+    # correction); a larger change is radar elevation error or a fit extrapolated from a few near
+    # ground returns, and the frame takes its neighbours' fit or, when no frame has one, the
+    # prior unscaled (scale 1, shift 0).
+    flat_world_max_correction: float = 0.25
 
     # ---- scale recovery
     # "affine": robust fit of scale AND shift in inverse depth (right model for relative priors);
@@ -139,11 +156,17 @@ class DepthConfig:
             raise ValueError("visual_stride and histogram_bins must be >= 1")
         if self.temporal_window < 1 or self.temporal_window % 2 == 0:
             raise ValueError(f"temporal_window must be an odd number >= 1, got {self.temporal_window}")
+        if not self.flat_world_far > self.min_depth:
+            raise ValueError(f"flat_world_far must exceed min_depth, got {self.flat_world_far}")
+        if not self.flat_world_max_correction >= 0:
+            raise ValueError(f"flat_world_max_correction must be >= 0, got {self.flat_world_max_correction}")
         if not 0 < self.sky_top_rows <= 1:
             raise ValueError(f"sky_top_rows must be in (0, 1], got {self.sky_top_rows}")
 
     def resolved_kind(self, source: str, model_kind: str | None = None) -> str:
         """The prior kind ("inverse-depth" or "depth") for a resolved ``source``."""
+        if source == "flat-world":
+            return "inverse-depth"  # made here, always 1 / depth
         if self.prior_kind != "auto":
             return self.prior_kind
         if source == "oracle":

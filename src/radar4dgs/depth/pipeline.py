@@ -29,10 +29,11 @@ from radar4dgs.data.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.depth.geometry import DirectionIndex, transform_points
 from radar4dgs.depth.scale import (DYNAMIC, DepthWarning, FrameFit, FrameParameters, confidence_map, fill_from_neighbours,
-                                   frame_confidences, metric_depth, recover_scale,
+                                   frame_confidences, limit_metric_correction, metric_depth, recover_scale,
                                    temporal_refine)
 from radar4dgs.depth.sky import fallback_sky_mask
-from radar4dgs.depth.sources import build_depth_model, frame_inverse_depth, resolve_source
+from radar4dgs.depth.sources import (FLAT_WORLD_NOTICE, DepthModelError, build_depth_model, frame_inverse_depth,
+                                     resolve_source)
 
 SUMMARY_VERSION = 1
 
@@ -67,6 +68,40 @@ def static_mask(scene, index: int, num_points: int, radar_dir: str | Path | None
         return np.ones(num_points, bool), f"all points (ego-motion failed: {ego.reason})"
     is_dynamic, _ = classify_dynamic(scan.xyz, scan.v_r, ego)
     return ~np.asarray(is_dynamic, dtype=bool), "radar front end"
+
+
+# --------------------------------------------------------------------------------------------
+# The depth source
+
+
+def resolve_model(scene, config: DepthConfig, device: Any = None, model: Any = None) -> tuple[str, Any]:
+    """The concrete depth source of ``scene`` and its model (the network for "depth-anything-v2",
+    the :class:`~radar4dgs.depth.flat_world.FlatWorldDepth` for "flat-world", else None).
+
+    With ``source="auto"`` and no ``priors/mono_depth``, a network that cannot be loaded (or a
+    caller-given ``model``, used as the network) decides between Depth-Anything-V2 and the
+    flat-world prior; falling back to flat-world issues one :class:`DepthWarning`.
+    """
+    from radar4dgs.depth.flat_world import FlatWorldDepth
+
+    source = resolve_source(scene, config)
+    why = ""
+    if config.source == "auto" and source == "flat-world" and model is not None \
+            and not isinstance(model, FlatWorldDepth):
+        source = "depth-anything-v2"
+    if source == "depth-anything-v2" and model is None:
+        try:
+            model = build_depth_model(config, device)
+        except DepthModelError as exc:
+            if config.source != "auto":
+                raise
+            source, why = "flat-world", f": {str(exc).splitlines()[0]}"
+    if source == "flat-world":
+        if config.source == "auto":
+            warnings.warn(FLAT_WORLD_NOTICE.format(model=str(config.model), why=why), DepthWarning, stacklevel=3)
+        if not isinstance(model, FlatWorldDepth):
+            model = FlatWorldDepth(scene, config.flat_world_far, config.flat_world_ground_z)
+    return source, model
 
 
 # --------------------------------------------------------------------------------------------
@@ -133,7 +168,7 @@ def render_frame(x: np.ndarray, image: np.ndarray | None, parameters: FrameParam
 
 def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.ndarray], method: str,
                static_masks: Sequence[np.ndarray | None] | None = None, radar_dir: str | Path | None = None,
-               progress: bool | Callable = False, index: DirectionIndex | None = None
+               progress: bool | Callable = False, index: DirectionIndex | None = None, flat_world: Any = None
                ) -> tuple[list[FrameFit], list[FrameParameters], dict]:
     """Scale recovery on every frame, then the neighbour fallback.
 
@@ -142,6 +177,10 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
         static_masks: per frame (N,) bool static masks (None entries or None: looked up with
             :func:`static_mask` in ``radar_dir``, the radar stage's folder).
         index: the camera's :class:`DirectionIndex` when the caller already built it.
+        flat_world: the :class:`~radar4dgs.depth.flat_world.FlatWorldDepth` when that is the
+            source: radar points on its wall are not paired (the wall is a stand-in, counted as
+            "sky"), fits that correct it by more than ``config.flat_world_max_correction`` are
+            rejected, and with no fit in any frame it is used unscaled instead of failing.
 
     Returns:
         fits, per-frame parameters and info (static-mask sources, timings).
@@ -165,6 +204,8 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
         info["static_sources"].append(source)
         points = transform_points(scene.radar_to_camera(i), scan.xyz)
         sky = sky_prior(scene, i, config, use_sky_prior)
+        if flat_world is not None:
+            sky = flat_world.wall if sky is None else (sky | flat_world.wall)
         start = time.perf_counter()
         fit = recover_scale(x, points, camera.K, config, method, static, sky, index,
                             np.random.default_rng(config.seed + i))
@@ -178,8 +219,10 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
         start = time.perf_counter()
         fits = temporal_refine(fits, config)
         info["temporal_s"] = time.perf_counter() - start
+    if flat_world is not None:
+        fits = limit_metric_correction(fits, config.flat_world_max_correction, 1.0 / flat_world.far)
     names = [f.name for f in scene.frames]
-    parameters = fill_from_neighbours(fits, [f.timestamp for f in scene.frames], names)
+    parameters = fill_from_neighbours(fits, [f.timestamp for f in scene.frames], names, flat_world is not None)
     return fits, parameters, info
 
 
@@ -267,11 +310,9 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
     depth_dir, sky_dir = Path(depth_dir), Path(sky_dir)
     depth_dir.mkdir(parents=True, exist_ok=True)
     sky_dir.mkdir(parents=True, exist_ok=True)
-    source = resolve_source(scene, config)
+    source, model = resolve_model(scene, config, device, model)
     if source == "oracle":
         warnings.warn("depth: source 'oracle' reads gt/depth: an ablation, not a result", DepthWarning, stacklevel=2)
-    if source == "depth-anything-v2" and model is None:
-        model = build_depth_model(config, device)
     kind = config.resolved_kind(source, "metric" if getattr(model, "kind", "") == "depth" else None)
     method = config.resolved_method(kind)
     names = [f.name for f in scene.frames]
@@ -285,7 +326,8 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
         np.save(relative_dir / f"{names[i]}.npy", x)
         return x
 
-    fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir, progress)
+    fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir, progress,
+                                        flat_world=model if source == "flat-world" else None)
     frame_conf = frame_confidences(fits, parameters, config)
     entries = []
     use_sky_prior = uses_sky_prior(scene, config)
@@ -311,6 +353,7 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
                  "depth_scale = 1/scale for pure-scale (paper) frames",
         "source": source, "prior_kind": kind, "method": method,
         "network": config.model if source == "depth-anything-v2" else None,
+        "flat_world": model.describe() if source == "flat-world" else None,
         "num_frames": len(scene),
         "fallbacks": [e["name"] for e in entries if e["parameters_from"] != "fit"],
         "sky_sources": sorted({e["sky_source"] for e in entries}),
@@ -341,9 +384,7 @@ def evaluate_depth_methods(scene, config: DepthConfig | None = None, methods: Se
     if relative is not None:
         source, kind = "given", "inverse-depth" if config.prior_kind == "auto" else config.prior_kind
     else:
-        source = resolve_source(scene, config)
-        if source == "depth-anything-v2" and model is None:
-            model = build_depth_model(config)
+        source, model = resolve_model(scene, config, model=model)
         kind = config.resolved_kind(source, "metric" if getattr(model, "kind", "") == "depth" else None)
     cache: dict[int, np.ndarray] = {}
 
@@ -364,7 +405,7 @@ def evaluate_depth_methods(scene, config: DepthConfig | None = None, methods: Se
     use_sky_prior = uses_sky_prior(scene, config)
     for method in methods:
         fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir,
-                                            index=index)
+                                            index=index, flat_world=model if source == "flat-world" else None)
         frame_conf = frame_confidences(fits, parameters, config)
         frames = []
         for i in range(len(scene)):

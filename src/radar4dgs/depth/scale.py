@@ -429,6 +429,35 @@ def temporal_refine(fits: list[FrameFit], config: DepthConfig) -> list[FrameFit]
     return out
 
 
+def limit_metric_correction(fits: list[FrameFit], max_change: float, x_min: float) -> list[FrameFit]:
+    """Reject the fits that move an already metric prior (``x = 1 / depth``) too far.
+
+    A fit multiplies the prior's depth by ``x / (a x + b)``, monotonic in ``x``; over the prior's
+    whole range ``[x_min, inf)`` (``x_min = 1 / farthest depth``) the largest change is at an end:
+    ``x_min / (a x_min + b)`` or ``1 / a``. The radar inliers of a sparse radar sit in a narrow
+    span (the few ground returns are near), so the fit is judged where it is extrapolated too.
+    Fits whose change exceeds ``max_change`` (a fraction) come back with ``ok`` False and the
+    reason (pairs and inliers kept for the summary); the others unchanged.
+    """
+    out = []
+    for fit in fits:
+        if not fit.ok:
+            out.append(fit)
+            continue
+        far = fit.a * x_min + fit.b
+        ratios = np.array([x_min / far if far > 0 else math.inf, 1.0 / fit.a])
+        change = float(np.max(np.abs(ratios - 1.0)))
+        if change <= max_change:
+            out.append(fit)
+            continue
+        what = f"by {change:.0%}" if math.isfinite(change) else "to beyond infinity at its far end"
+        out.append(FrameFit(fit.method, math.nan, math.nan, False,
+                            f"radar fit changes the metric prior's depth {what} (> {max_change:.0%})",
+                            fit.pairs, fit.inliers, fit.votes, fit.scale_only,
+                            extra={**fit.extra, "rejected_a": fit.a, "rejected_b": fit.b}))
+    return out
+
+
 def _finish(fit: FrameFit) -> FrameFit:
     """Fill the inlier statistics used by the confidence map and the summary."""
     if fit.inliers.any():
@@ -476,18 +505,27 @@ class FrameParameters:
 
     a: float
     b: float
-    source: str  # "fit", "neighbours", "pooled"
+    source: str  # "fit", "neighbours", "metric prior"
     from_frames: tuple[int, ...] = ()
 
 
-def fill_from_neighbours(fits: list[FrameFit], timestamps, names=None) -> list[FrameParameters]:
+def fill_from_neighbours(fits: list[FrameFit], timestamps, names=None, metric_prior: bool = False
+                         ) -> list[FrameParameters]:
     """Per-frame parameters: a frame's own fit when ``ok``, else the time-interpolation of the
     nearest good frames before and after it (the one good neighbour where only one side has one),
-    with a :class:`DepthWarning`. Raises ValueError when no frame has a fit.
+    with a :class:`DepthWarning`. When no frame has a fit: a ``metric_prior`` (already metric, as
+    the flat-world source) is used as it is (a = 1, b = 0, source "metric prior", one warning);
+    otherwise ValueError.
     """
     timestamps = np.asarray(timestamps, dtype=np.float64)
     names = list(names) if names is not None else [str(i) for i in range(len(fits))]
     good = [i for i, fit in enumerate(fits) if fit.ok]
+    if not good and metric_prior and fits:
+        reasons = sorted({f.reason for f in fits})
+        listed = "; ".join(reasons[:3]) + ("; ..." if len(reasons) > 3 else "")
+        warnings.warn(f"depth: no frame has a radar fit ({listed}); the metric prior is used unscaled "
+                      "(scale 1, shift 0)", DepthWarning, stacklevel=2)
+        return [FrameParameters(1.0, 0.0, "metric prior") for _ in fits]
     if not good:
         raise ValueError("no frame has enough validated radar pairs for scale recovery "
                          f"({fits[0].reason if fits else 'no frames'}); check the radar calibration, "
@@ -564,7 +602,8 @@ def frame_confidences(fits: list[FrameFit], parameters: list[FrameParameters], c
 
     An own fit with n inliers has confidence n / (n + min_pairs) and its inliers' x span; a frame
     filled from neighbours gets ``config.fallback_confidence`` times the mean of its sources'
-    confidences and the union of their spans.
+    confidences and the union of their spans; an unscaled metric prior gets
+    ``config.fallback_confidence`` and no span.
     """
     own = [(f.num_inliers / (f.num_inliers + config.min_pairs), f.x_range) if f.ok else (0.0, (math.nan, math.nan))
            for f in fits]
@@ -572,6 +611,9 @@ def frame_confidences(fits: list[FrameFit], parameters: list[FrameParameters], c
     for i, p in enumerate(parameters):
         if p.source == "fit":
             out.append(own[i])
+            continue
+        if p.source == "metric prior":
+            out.append((config.fallback_confidence, (math.nan, math.nan)))
             continue
         sources = [own[s] for s in p.from_frames] or [(0.0, (math.nan, math.nan))]
         conf = config.fallback_confidence * float(np.mean([c for c, _ in sources]))

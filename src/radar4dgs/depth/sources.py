@@ -1,5 +1,6 @@
-"""Depth sources: the scene's prior, Depth-Anything-V2 through HuggingFace ``transformers``, and
-the ground-truth oracle (ablations only).
+"""Depth sources: the scene's prior, Depth-Anything-V2 through HuggingFace ``transformers``, the
+weight-free flat-world ground plane (:mod:`radar4dgs.depth.flat_world`) and the ground-truth
+oracle (ablations only).
 
 Every source is returned as a *relative inverse depth* ``x`` (H, W) float32: larger = closer,
 ``x <= 0`` or non-finite = far / no depth. A depth-like source (the oracle, a metric network) is
@@ -8,6 +9,7 @@ converted with ``x = 1 / depth`` (``+inf`` depth, i.e. sky, becomes 0).
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any
 
@@ -28,16 +30,52 @@ class DepthModelError(RuntimeError):
     """The depth network cannot be loaded (transformers missing or weights absent)."""
 
 
+FLAT_WORLD_NOTICE = ("depth: no learned depth prior (no priors/mono_depth, no local Depth-Anything-V2 weights "
+                     "for {model!r}{why}): using the flat-world ground-plane prior, right on the road only; "
+                     "Depth-Anything-V2 weights (--config.depth.model FOLDER) give much better depth")
+
+
 def resolve_source(scene, config: DepthConfig) -> str:
     """The concrete source for ``scene``: "auto" picks "prior" when the scene has
-    ``priors/mono_depth``, else "depth-anything-v2"."""
+    ``priors/mono_depth``, else "depth-anything-v2" when :func:`depth_anything_available`, else
+    "flat-world" (the caller warns with :data:`FLAT_WORLD_NOTICE`)."""
     if config.source == "auto":
-        return "prior" if scene.has("priors/mono_depth") else "depth-anything-v2"
+        if scene.has("priors/mono_depth"):
+            return "prior"
+        return "depth-anything-v2" if depth_anything_available(config) else "flat-world"
     if config.source == "prior" and not scene.has("priors/mono_depth"):
         raise FileNotFoundError(f"{scene.root}: depth source 'prior' needs a complete priors/mono_depth/ folder")
     if config.source == "oracle" and not scene.has("gt/depth"):
         raise FileNotFoundError(f"{scene.root}: depth source 'oracle' needs a complete gt/depth/ folder")
     return config.source
+
+
+def depth_anything_available(config: DepthConfig) -> bool:
+    """Whether ``config.model`` can be loaded without reaching the network: ``transformers`` is
+    installed and the model is a local folder with a ``config.json`` or, for a hub id, its config
+    and weights are in the HuggingFace cache. True whenever ``local_files_only`` is off (the user
+    allowed the download). Cheap: nothing is imported or loaded."""
+    if importlib.util.find_spec("transformers") is None:
+        return False
+    if not config.local_files_only:
+        return True
+    folder = Path(str(config.model)).expanduser()
+    if folder.exists():
+        return (folder / "config.json").is_file()
+    if str(config.model).startswith((".", "/", "~")):
+        return False
+    try:
+        from huggingface_hub import try_to_load_from_cache
+    except ImportError:
+        return False
+
+    def cached(filename: str) -> bool:
+        try:
+            return isinstance(try_to_load_from_cache(str(config.model), filename), str)
+        except ValueError:  # not a valid repo id
+            return False
+
+    return cached("config.json") and (cached("model.safetensors") or cached("pytorch_model.bin"))
 
 
 def to_inverse(values: np.ndarray, kind: str) -> np.ndarray:
@@ -139,9 +177,10 @@ def build_depth_model(config: DepthConfig, device: Any = None) -> DepthAnythingV
                            local_files_only=config.local_files_only)
 
 
-def frame_inverse_depth(scene, index: int, source: str, kind: str, model: DepthAnythingV2 | None = None
-                        ) -> np.ndarray:
-    """(H, W) float32 relative inverse depth of frame ``index`` from a resolved ``source``."""
+def frame_inverse_depth(scene, index: int, source: str, kind: str, model: Any = None) -> np.ndarray:
+    """(H, W) float32 relative inverse depth of frame ``index`` from a resolved ``source``;
+    ``model`` is the :class:`DepthAnythingV2` or the
+    :class:`~radar4dgs.depth.flat_world.FlatWorldDepth` of those sources (built here when None)."""
     if source == "prior":
         values = scene.load_optional("priors/mono_depth", index)
     elif source == "oracle":
@@ -150,6 +189,13 @@ def frame_inverse_depth(scene, index: int, source: str, kind: str, model: DepthA
         if model is None:
             raise ValueError("source 'depth-anything-v2' needs the model (build_depth_model)")
         values = model(scene.load_image(index))
+    elif source == "flat-world":
+        if model is None:
+            from radar4dgs.depth.flat_world import FlatWorldDepth
+
+            model = FlatWorldDepth(scene)
+        values = model()
     else:
-        raise ValueError(f"unknown depth source {source!r}; choose 'prior', 'depth-anything-v2' or 'oracle'")
+        raise ValueError(f"unknown depth source {source!r}; choose 'prior', 'depth-anything-v2', 'flat-world' "
+                         "or 'oracle'")
     return to_inverse(values, kind)
