@@ -1,0 +1,54 @@
+"""``radar4dgs train SCENE --out RUN``: the three-stage Gaussian training of a prepared scene."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar, Optional
+
+import tyro
+
+from radar4dgs.config import PresetName
+from radar4dgs.train.config import TrainConfig
+
+
+@dataclass
+class TrainCommand:
+    """Train the Gaussian scene (static + dynamic Gaussians, VGPT field, sky) on a prepared scene."""
+
+    # The scene folder.
+    scene: tyro.conf.Positional[Path]
+    # The run folder (config, checkpoints, model, then metrics and renders from `radar4dgs eval`).
+    out: Path = Path("runs/train")
+    # The prepared folder; default <scene>/prepared (run `radar4dgs prepare SCENE` first).
+    prepared: Optional[Path] = None
+    # Preset the config starts from.
+    preset: PresetName = "small"
+    # Everything the trainer does (filled from --preset, then overridden by options).
+    config: TrainConfig = field(default_factory=TrainConfig)
+    # Continue the run in --out from its last checkpoint.
+    resume: bool = False
+    # Evaluate the run when training ends (as `radar4dgs eval RUN`).
+    eval: bool = True
+    # Hide the progress bar.
+    quiet: bool = False
+
+    PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": TrainConfig}
+
+    def run(self) -> int:
+        from radar4dgs.data.scene import SceneError
+        from radar4dgs.train.trainer import TrainingError, train_run
+
+        prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
+        try:
+            train_run(self.scene, prepared, self.out, self.config, resume=self.resume, progress=not self.quiet)
+        except (SceneError, FileNotFoundError, ValueError, TrainingError) as exc:
+            print(f"radar4dgs train: {exc}", file=sys.stderr)
+            return 1
+        print(f"trained: {self.out}")
+        if self.eval:
+            from radar4dgs.evaluate.reconstruction import EvalCommand
+
+            return EvalCommand(self.out).run()
+        return 0

@@ -1,0 +1,164 @@
+"""The trainer's configuration (DESIGN.md stage 7): one dataclass per concern, named presets.
+
+:class:`TrainConfig` nests the Gaussian initialisation, the deformation field, the losses, the
+optimiser, densification and the rasterizer. Stage boundaries are fractions of the total so that
+every preset keeps the paper's proportions (30k iterations, stage 2 at 15k, stage 3 at 20k).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal, Mapping
+
+from radar4dgs.motion.field import FieldConfig
+from radar4dgs.render.api import RasterConfig
+from radar4dgs.train.gaussians import GaussianInitConfig
+
+# "ours": static + dynamic Gaussians moved by the VGPT field; "static": every Gaussian static, no
+# field (the same trainer with dynamics switched off).
+Method = Literal["ours", "static"]
+
+
+@dataclass
+class LossConfig:
+    """Weights of the training loss (DESIGN.md stage 7) and of the field's supervision."""
+
+    # lambda_r: weight of (1 - SSIM) against the L1 term, which gets (1 - lambda_r).
+    ssim_weight: float = 0.2
+    # lambda_d: inverse-depth L1 against the radar-scaled prepared depth (non-sky pixels).
+    depth_weight: float = 0.1
+    # lambda_obj: BCE of the rendered dynamic mask against the prepared mask (stage 3 only).
+    object_weight: float = 0.05
+    # lambda_sky: BCE of the rendered opacity against the sky mask (opacity 0 on sky).
+    sky_weight: float = 0.05
+    # Weight of L_flow (m^2) on the field.
+    flow_weight: float = 1.0
+    # Weight of L_rad (m) on the field (as the standalone fit's radar_weight).
+    radar_weight: float = 0.5
+    # Flow pairs and radar points drawn per iteration for L_flow and L_rad.
+    motion_batch: int = 1024
+    # Association gate (m) of a dynamic point to its nearest dynamic radar point.
+    radar_gate: float = 2.0
+    # Dynamic pixels per frame lifted as radar-supervised points.
+    radar_points_per_frame: int = 2000
+
+
+@dataclass
+class OptimConfig:
+    """Iterations, stage boundaries, learning rates and dropout."""
+
+    # Total iterations (one training image each).
+    iterations: int = 3000
+    # Stage 2 (static frozen; dynamic Gaussians and field) starts at this fraction (paper 15k/30k).
+    stage2_start: float = 0.5
+    # Stage 3 (everything, plus the object loss) starts at this fraction (paper 20k/30k).
+    stage3_start: float = 2.0 / 3.0
+    # Learning rate of the Gaussian means, in units of the scene extent (3DGS: 1.6e-4), decayed
+    # exponentially to means_lr_final over the run.
+    means_lr: float = 1.6e-4
+    means_lr_final: float = 1.6e-6
+    # Learning rates of the other Gaussian parameters (colour and opacity are logits).
+    quats_lr: float = 1e-3
+    scales_lr: float = 5e-3
+    opacity_lr: float = 5e-2
+    colors_lr: float = 1e-2
+    # Deformation field (Adam), decayed by field_lr_final_ratio over the run.
+    field_lr: float = 1e-3
+    field_lr_final_ratio: float = 0.1
+    # Sky environment map (colour logits).
+    sky_lr: float = 1e-2
+    # Gaussian dropout: each iteration this fraction of the Gaussians gets opacity 0 and the rest
+    # are scaled by 1 / (1 - p) (clamped to 1), so the expected opacity is unchanged.
+    dropout: float = 0.1
+    # Iterations over which dropout is used, as a fraction of the run (off for the last part so the
+    # model settles on the opacities it is evaluated with).
+    dropout_until: float = 0.9
+
+
+@dataclass
+class DensifyConfig:
+    """3DGS adaptive density control (gsplat's DefaultStrategy rules, written here: gsplat is
+    CUDA-only in this project)."""
+
+    # Densify and prune every this many iterations, from start to stop (fractions of the run).
+    every: int = 100
+    start: float = 0.05
+    stop: float = 0.5
+    # Grow Gaussians whose mean screen-space position gradient (NDC units, as 3DGS) exceeds this.
+    grad_threshold: float = 2e-4
+    # Clone when the largest scale is below this fraction of the scene extent, else split in two.
+    clone_max_scale: float = 0.01
+    # Prune Gaussians with opacity below this, or larger than prune_scale x the scene extent.
+    prune_opacity: float = 0.005
+    prune_scale: float = 0.1
+    # Reset opacities to reset_value every this many iterations (0 = never).
+    reset_every: int = 0
+    reset_value: float = 0.01
+    # Never let a set grow beyond this many Gaussians (the CPU rasterizer's time grows with it).
+    max_gaussians: int = 200_000
+
+
+@dataclass
+class TrainConfig:
+    """Everything `radar4dgs train` needs besides the scene and its prepared folder."""
+
+    # "ours" (static + dynamic Gaussians and the VGPT field) or "static" (dynamics off).
+    method: Method = "ours"
+    # Seed of the initial subsampling, camera order, dropout and motion minibatches.
+    seed: int = 0
+    # Render and supervise at this fraction of the scene resolution (1 = full).
+    resolution_scale: float = 1.0
+    # Save a checkpoint every this many iterations (and at the end); 0 = only at the end.
+    checkpoint_every: int = 500
+    # Log the loss terms every this many iterations.
+    log_every: int = 25
+    # Torch device ("cpu", "cuda", ...) and intra-op threads (0 = torch's default).
+    device: str = "cpu"
+    threads: int = 0
+    # Initialisation from the prepared depth.
+    init: GaussianInitConfig = dataclasses.field(default_factory=GaussianInitConfig)
+    # The invertible deformation field.
+    field: FieldConfig = dataclasses.field(default_factory=FieldConfig)
+    losses: LossConfig = dataclasses.field(default_factory=LossConfig)
+    optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
+    densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
+    raster: RasterConfig = dataclasses.field(default_factory=RasterConfig)
+    # Sky map size (texels, equirectangular).
+    sky_height: int = 64
+    sky_width: int = 128
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        "tiny": {"init": dict(GaussianInitConfig.PRESETS["tiny"]), "field": dict(FieldConfig.PRESETS["tiny"]),
+                 "optim": {"iterations": 300}, "checkpoint_every": 100, "log_every": 10,
+                 "densify": {"every": 50, "max_gaussians": 30_000},
+                 "losses": {"motion_batch": 512, "radar_points_per_frame": 500}},
+        "small": {"init": dict(GaussianInitConfig.PRESETS["small"]), "field": dict(FieldConfig.PRESETS["small"])},
+        "paper": {"init": dict(GaussianInitConfig.PRESETS["paper"]), "field": dict(FieldConfig.PRESETS["paper"]),
+                  "optim": {"iterations": 30_000}, "checkpoint_every": 5000, "log_every": 100,
+                  "densify": {"every": 100, "reset_every": 3000, "max_gaussians": 3_000_000},
+                  "losses": {"motion_batch": 8192, "radar_points_per_frame": 10_000}},
+    }
+
+    def __post_init__(self) -> None:
+        o = self.optim
+        if o.iterations < 1:
+            raise ValueError(f"optim.iterations must be >= 1, got {o.iterations}")
+        if not 0.0 <= o.stage2_start <= o.stage3_start <= 1.0:
+            raise ValueError("need 0 <= optim.stage2_start <= optim.stage3_start <= 1, got "
+                             f"{o.stage2_start}, {o.stage3_start}")
+        if not 0.0 <= o.dropout < 1.0:
+            raise ValueError(f"optim.dropout must lie in [0, 1), got {o.dropout}")
+        if not 0.0 < self.resolution_scale <= 1.0:
+            raise ValueError(f"resolution_scale must lie in (0, 1], got {self.resolution_scale}")
+
+    def stage_at(self, step: int) -> int:
+        """The training stage (1, 2 or 3) of iteration ``step`` (0-based); the "static" method has
+        no dynamic stages and stays in stage 1 with every Gaussian trained."""
+        if self.method == "static":
+            return 1
+        if step >= round(self.optim.stage3_start * self.optim.iterations):
+            return 3
+        if step >= round(self.optim.stage2_start * self.optim.iterations):
+            return 2
+        return 1

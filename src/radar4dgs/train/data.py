@@ -1,0 +1,124 @@
+"""What the trainer supervises with, loaded once from the scene and its prepared folder.
+
+Per training frame: the image, the radar-scaled depth, the sky mask and the predicted dynamic mask
+(all at the training resolution), the camera and its pixel ray directions. For the field: the
+lifted pseudo scene-flow pairs of ``prepared/flow`` and the radar-associated dynamic points
+(the standalone motion fit's own samplers, so the two fits see the same data).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from radar4dgs.data.scene import read_mask_png
+from radar4dgs.motion.fit import (FitConfig, FlowSamples, RadarSamples, collect_radar_samples,
+                                  flow_samples_from_pairs, normalized_times)
+from radar4dgs.motion.flow import FlowConfig, load_flow_pairs
+from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.model import View, scale_intrinsics
+from radar4dgs.train.sky import camera_ray_directions
+
+
+def _require(path: Path, what: str) -> Path:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing {what} (run `radar4dgs prepare` on the scene first)")
+    return path
+
+
+def resized_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """(width, height) of the image at ``scale`` (at least 1 pixel each)."""
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Area-averaged resize of an (H, W, C) or (H, W) image to ``size`` = (width, height)."""
+    if image.shape[1] == size[0] and image.shape[0] == size[1]:
+        return image
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+
+def resize_nearest(array: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Nearest-neighbour resize (depth keeps real values; masks stay masks)."""
+    if array.shape[1] == size[0] and array.shape[0] == size[1]:
+        return array
+    dtype = array.dtype
+    out = cv2.resize(array.astype(np.float32), size, interpolation=cv2.INTER_NEAREST)
+    return out.astype(dtype)
+
+
+def frame_view(scene, index: int, scale: float, times: np.ndarray) -> View:
+    """The :class:`View` of frame ``index`` at resolution ``scale``."""
+    width, height = resized_size(scene.camera.width, scene.camera.height, scale)
+    return View(scene.world_to_camera(index), scale_intrinsics(scene.camera.K, width / scene.camera.width),
+                width, height, float(times[index]))
+
+
+@dataclass
+class FrameTargets:
+    """Supervision of one frame: ``image`` (H, W, 3) in [0, 1], ``depth`` (H, W) metres (NaN where
+    unknown), ``sky`` (H, W) bool, ``dynamic`` (H, W) bool, ``directions`` (H, W, 3) world rays."""
+
+    index: int
+    name: str
+    view: View
+    image: Tensor
+    depth: Tensor
+    sky: Tensor
+    dynamic: Tensor
+    directions: Tensor
+
+
+def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: np.ndarray,
+                       device: torch.device, dtype: torch.dtype) -> FrameTargets:
+    """:class:`FrameTargets` of frame ``index`` from the scene and ``prepared``."""
+    name = scene.frames[index].name
+    H, W = scene.camera.height, scene.camera.width
+    view = frame_view(scene, index, scale, times)
+    size = (view.width, view.height)
+    image = resize_image(scene.load_image(index).astype(np.float32) / 255.0, size)
+    depth = np.load(_require(prepared / "depth" / f"{name}.npy", "depth")).astype(np.float32)
+    if depth.shape != (H, W):
+        raise ValueError(f"{prepared / 'depth' / (name + '.npy')}: shape {depth.shape}, expected {(H, W)}")
+    sky = read_mask_png(_require(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
+    dynamic = read_mask_png(_require(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
+    depth, sky, dynamic = (resize_nearest(a, size) for a in (depth, sky, dynamic))
+    kw = {"device": device}
+    return FrameTargets(
+        index=index, name=name, view=view,
+        image=torch.as_tensor(image, dtype=dtype, **kw),
+        depth=torch.as_tensor(depth, dtype=dtype, **kw),
+        sky=torch.as_tensor(sky, **kw), dynamic=torch.as_tensor(dynamic, **kw),
+        directions=camera_ray_directions(view.K, view.world_to_camera, view.height, view.width,
+                                         device=device, dtype=dtype),
+    )
+
+
+@dataclass
+class MotionTargets:
+    """The field's supervision as tensors (either may be None when absent)."""
+
+    flow: FlowSamples | None
+    radar: RadarSamples | None
+    stats: dict
+
+
+def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTargets:
+    """Lifted flow pairs (``prepared/flow``) and radar-associated dynamic points of every training
+    frame pair; each is None when the scene has none (no dynamic pixels, no flow folder)."""
+    times = normalized_times(scene)
+    flow = None
+    stats: dict = {}
+    if (prepared / "flow").is_dir():
+        flow = flow_samples_from_pairs(load_flow_pairs(prepared), times)
+        stats["flow_pairs"] = len(flow)
+    fit = FitConfig(radar_gate=config.losses.radar_gate, radar_points_per_frame=config.losses.radar_points_per_frame,
+                    seed=config.seed)
+    radar, radar_stats = collect_radar_samples(scene, prepared, FlowConfig(), fit, times)
+    stats.update(radar_stats)
+    return MotionTargets(flow if flow is not None and len(flow) else None, radar if len(radar) else None, stats)

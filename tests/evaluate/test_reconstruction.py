@@ -1,0 +1,112 @@
+"""`radar4dgs eval RUN` on a tiny trained run: metrics against recomputation, outputs, determinism."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from radar4dgs.cli import main
+from radar4dgs.config import preset
+from radar4dgs.data.synth import SynthConfig, synthesize
+from radar4dgs.motion.fit import torch_threads
+from radar4dgs.prepare import PrepareConfig, run_prepare
+from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.trainer import train_run
+from radar4dgs.evaluate.reconstruction import evaluate_run, format_metrics, load_run
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    scene = root / "scene"
+    synthesize(preset(SynthConfig, "tiny", seed=4, num_frames=8), scene, progress=False)
+    run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
+    config = preset(TrainConfig, "tiny", threads=1, optim={"iterations": 20},
+                    init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
+    with torch_threads(1):
+        train_run(scene, scene / "prepared", root / "run", config, progress=False)
+    return root
+
+
+def _psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    diff = (a.astype(np.float64) - b.astype(np.float64)) / 255.0
+    if mask is not None:
+        diff = diff[mask]
+    return float(10 * np.log10(1.0 / np.mean(diff ** 2)))
+
+
+def test_metrics_match_a_recomputation_from_the_saved_renders(trained):
+    run_dir = trained / "run"
+    metrics = evaluate_run(run_dir, progress=False)
+    on_disk = json.loads((run_dir / "metrics.json").read_text())
+    assert on_disk["recon"] == pytest.approx(metrics["recon"])
+    run = load_run(run_dir)
+    scene = run.scene
+    assert metrics["recon"]["n_frames"] == len(scene.train_indices) == 6
+    assert metrics["nvs"]["n_frames"] == len(scene.test_indices) == 2
+    assert metrics["mask_source"] == "gt"
+    assert metrics["lpips_available"] is False and metrics["nvs"]["lpips_vgg"] is None
+    for split, indices in (("recon", scene.train_indices), ("nvs", scene.test_indices)):
+        recomputed, dyn = [], []
+        for i in indices:
+            name = scene.frames[i].name
+            with Image.open(run_dir / "renders" / split / f"{name}.png") as image:
+                render = np.asarray(image.convert("RGB"))
+            gt = scene.load_image(i)
+            recomputed.append(_psnr(render, gt))
+            mask = scene.load_optional("gt/dynamic_mask", i)
+            if mask.any():
+                dyn.append(_psnr(render, gt, mask))
+            assert (run_dir / "renders" / split / f"{name}_depth.png").is_file()
+            assert (run_dir / "renders" / split / f"{name}_dynamic.png").is_file()
+        # The PNGs are rounded to 8 bits: PSNR agrees to a few hundredths of a dB.
+        assert metrics[split]["psnr"] == pytest.approx(np.mean(recomputed), abs=0.05)
+        if dyn:
+            assert metrics[split]["psnr_dyn"] == pytest.approx(np.mean(dyn), abs=0.1)
+        assert 0.0 < metrics[split]["ssim"] <= 1.0
+    assert (run_dir / "video.mp4").stat().st_size > 1000
+    html = (run_dir / "report.html").read_text()
+    assert "data:image/png;base64," in html
+    table = format_metrics(metrics)
+    assert "PSNR*" in table and f"{metrics['nvs']['psnr']:.2f}" in table
+
+
+def test_evaluation_is_deterministic_and_cli_reloads_the_saved_config(trained, capsys):
+    run_dir = trained / "run"
+    first = evaluate_run(run_dir, video=False, report=False, progress=False)
+    assert main(["eval", str(run_dir), "--no-video", "--no-report"]) == 0
+    assert "recon" in capsys.readouterr().out
+    second = json.loads((run_dir / "metrics.json").read_text())
+    for split in ("recon", "nvs"):
+        assert second[split]["psnr"] == first[split]["psnr"]
+        assert second[split]["psnr_dyn"] == first[split]["psnr_dyn"]
+
+
+def test_predicted_masks_are_used_without_ground_truth(trained, tmp_path):
+    # A copy of the scene without gt/: PSNR* falls back to the prepared masks, and says so.
+    scene = tmp_path / "scene"
+    shutil.copytree(trained / "scene", scene, ignore=shutil.ignore_patterns("gt"))
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained / "run", run_dir)
+    run_file = json.loads((run_dir / "run.json").read_text())
+    run_file["scene"] = str(scene)
+    (run_dir / "run.json").write_text(json.dumps(run_file))
+    metrics = evaluate_run(run_dir, video=False, report=False, progress=False)
+    assert metrics["mask_source"] == "predicted"
+
+
+def test_missing_model_is_named(tmp_path):
+    (tmp_path / "run").mkdir()
+    with pytest.raises(FileNotFoundError, match="run.json"):
+        evaluate_run(tmp_path / "run", progress=False)

@@ -1,0 +1,237 @@
+"""The trainer on a tiny prepared synthetic scene: stages, losses, resume, densification, errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from radar4dgs.config import preset
+from radar4dgs.data.synth import SynthConfig, synthesize
+from radar4dgs.motion.fit import torch_threads
+from radar4dgs.prepare import PrepareConfig, run_prepare
+from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
+from radar4dgs.train.gaussians import GaussianSet
+from radar4dgs.train.model import load_model, rasterizer_intrinsics, scale_intrinsics
+from radar4dgs.train.trainer import (TrainingError, Trainer, binary_cross_entropy, exponential_lr,
+                                     frame_order, inverse_depth_l1, psnr_of, step_generator, train_run)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory):
+    scene = tmp_path_factory.mktemp("train") / "scene"
+    synthesize(preset(SynthConfig, "tiny", seed=2, num_frames=8), scene, progress=False)
+    run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
+    return scene, scene / "prepared"
+
+
+def tiny_config(**overrides) -> TrainConfig:
+    values = {"optim": {"iterations": 24}, "checkpoint_every": 8, "log_every": 1,
+              "init": {"points_per_frame": 600, "max_static": 3000, "max_dynamic": 600},
+              "densify": {"every": 6, "start": 0.0, "stop": 1.0, "grad_threshold": 1e-6, "max_gaussians": 4000},
+              "losses": {"motion_batch": 64, "radar_points_per_frame": 100}, "threads": 1}
+    for key, value in overrides.items():
+        if isinstance(value, dict):
+            values.setdefault(key, {}).update(value)
+        else:
+            values[key] = value
+    return preset(TrainConfig, "tiny", **values)
+
+
+# ---- pure pieces --------------------------------------------------------------------------
+
+
+def test_stage_boundaries_follow_the_paper_fractions():
+    config = preset(TrainConfig, "paper")
+    assert config.optim.iterations == 30_000
+    assert [config.stage_at(s) for s in (0, 14_999, 15_000, 19_999, 20_000, 29_999)] == [1, 1, 2, 2, 3, 3]
+    assert preset(TrainConfig, "tiny", method="static").stage_at(10**6) == 1
+
+
+def test_bad_config_is_refused():
+    with pytest.raises(ValueError, match="stage2_start"):
+        preset(TrainConfig, "tiny", optim={"stage2_start": 0.8, "stage3_start": 0.5})
+    with pytest.raises(ValueError, match="dropout"):
+        preset(TrainConfig, "tiny", optim={"dropout": 1.0})
+
+
+def test_half_pixel_conventions():
+    K = np.array([[100.0, 0, 159.5], [0, 100.0, 89.5], [0, 0, 1]])
+    half = scale_intrinsics(K, 0.5)
+    # The centre of the 320x180 image (159.5, 89.5) is the centre of the 160x90 one (79.5, 44.5).
+    np.testing.assert_allclose(half[:2, 2], [79.5, 44.5])
+    np.testing.assert_allclose(np.diag(half)[:2], [50.0, 50.0])
+    np.testing.assert_allclose(rasterizer_intrinsics(K)[:2, 2], [160.0, 90.0])
+
+
+def test_losses_against_closed_forms():
+    rendered = torch.tensor([[2.0, 4.0], [10.0, 1.0]])
+    target = torch.tensor([[4.0, 4.0], [float("nan"), 2.0]])
+    alpha = torch.tensor([[1.0, 1.0], [1.0, 0.0]])
+    valid = torch.ones(2, 2, dtype=torch.bool)
+    # Pixel (0, 0): |1/2 - 1/4| = 0.25; (0, 1): 0; (1, 0) NaN target; (1, 1) transparent.
+    assert float(inverse_depth_l1(rendered, alpha, target, valid)) == pytest.approx(0.125)
+    assert float(inverse_depth_l1(rendered, alpha, target, torch.zeros_like(valid))) == 0.0
+    p = torch.tensor([0.9, 0.2])
+    expected = -(math.log(0.9) + math.log(0.8)) / 2
+    assert float(binary_cross_entropy(p, torch.tensor([True, False]))) == pytest.approx(expected, rel=1e-6)
+    assert exponential_lr(1e-2, 1e-4, 0.5) == pytest.approx(1e-3)
+
+
+def test_random_draws_are_stateless():
+    a = torch.rand(5, generator=step_generator(3, 17))
+    b = torch.rand(5, generator=step_generator(3, 17))
+    assert torch.equal(a, b)
+    assert not torch.equal(a, torch.rand(5, generator=step_generator(3, 18)))
+    order = frame_order(1, 4, 10)
+    assert sorted(order.tolist()) == list(range(10))
+    np.testing.assert_array_equal(order, frame_order(1, 4, 10))
+
+
+# ---- densification ------------------------------------------------------------------------
+
+
+def _gaussians(n: int, scale: float = 0.05) -> GaussianSet:
+    rng = np.random.default_rng(0)
+    return GaussianSet.from_points(rng.normal(size=(n, 3)), rng.uniform(size=(n, 3)), min_scale=scale, max_scale=scale)
+
+
+def test_row_edits_keep_adam_moments_aligned():
+    g = _gaussians(6)
+    optimizer = torch.optim.Adam(g.param_groups({"means": 0.1, "colors": 0.1}, prefix="static."))
+    loss = (g.params["means"] ** 2).sum() + g.params["colors"].sum()
+    loss.backward()
+    optimizer.step()
+    before = optimizer.state[g.params["means"]]["exp_avg"].clone()
+    keep = torch.tensor([True, False, True, True, False, True])
+    keep_rows(g, optimizer, keep)
+    assert len(g) == 4
+    torch.testing.assert_close(optimizer.state[g.params["means"]]["exp_avg"], before[keep])
+    append_rows(g, optimizer, {k: v.detach()[:2].clone() for k, v in g.params.items()})
+    assert len(g) == 6
+    moments = optimizer.state[g.params["means"]]["exp_avg"]
+    torch.testing.assert_close(moments[:4], before[keep])
+    assert torch.all(moments[4:] == 0)
+    assert optimizer.param_groups[0]["params"][0] is g.params["means"]
+    # A step after the edit works (shapes agree).
+    (g.params["means"] ** 2).sum().backward()
+    optimizer.step()
+
+
+def test_split_children_are_drawn_from_the_parent():
+    g = _gaussians(1, scale=0.5)
+    params = {k: v.detach().repeat(4000, *([1] * (v.dim() - 1))) for k, v in g.params.items()}
+    children = split_samples(params, torch.Generator().manual_seed(0))
+    assert children["means"].shape == (8000, 3)
+    spread = (children["means"] - params["means"][0]).std(dim=0)
+    torch.testing.assert_close(spread, torch.full((3,), 0.5), atol=0.03, rtol=0)
+    torch.testing.assert_close(children["log_scales"], params["log_scales"].repeat(2, 1) - math.log(1.6))
+
+
+def test_densify_clones_small_splits_large_prunes_transparent():
+    g = _gaussians(4)
+    with torch.no_grad():
+        g.params["log_scales"][1] = math.log(2.0)  # large: split
+        g.params["opacity_logits"][3] = -10.0  # transparent: pruned
+    optimizer = torch.optim.Adam(g.param_groups({"means": 0.1}))
+    stats = GradientStats(4)
+    stats.add(torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 0.0], [0.0, 0.0]]), torch.ones(4, dtype=torch.bool), 2, 2)
+    config = tiny_config().densify
+    counts = densify_and_prune(g, optimizer, stats, extent=10.0, config=config, generator=torch.Generator())
+    assert counts == {"cloned": 1, "split": 1, "pruned": 1}
+    # 4 - split parent - pruned + clone + 2 children = 5.
+    assert len(g) == 5 and len(stats.grad) == 5
+
+
+# ---- training runs ------------------------------------------------------------------------
+
+
+def test_training_runs_all_stages_and_improves(prepared, tmp_path):
+    scene, prep = prepared
+    config = tiny_config(optim={"iterations": 30})
+    state = train_run(scene, prep, tmp_path / "run", config, progress=False)
+    logged = [h for h in state.history if "total" in h]
+    assert {h["stage"] for h in logged} == {1, 2, 3}
+    assert "object" in logged[-1] and "object" not in logged[0]
+    assert all(math.isfinite(h["total"]) for h in logged)
+    assert state.model.dynamic is not None and len(state.model.dynamic) > 0
+    # Training frames are rendered better than by the initial Gaussians.
+    trainer = Trainer(scene, prep, tmp_path / "unused", config, progress=False)
+    trainer._load()
+    initial = trainer._fresh_state().model
+
+    def mean_psnr(model):
+        with torch.no_grad():
+            return np.mean([psnr_of(model.render(t.view, directions=t.directions)["rgb"], t.image)
+                            for t in trainer.targets])
+
+    assert mean_psnr(state.model) > mean_psnr(initial) + 1.0
+    assert (tmp_path / "run" / "model.pt").is_file() and (tmp_path / "run" / "config.json").is_file()
+    assert any("densify" in h for h in state.history)
+    model = load_model(tmp_path / "run" / "model.pt")
+    assert model.num_gaussians == state.model.num_gaussians
+
+
+def test_resume_matches_an_unbroken_run(prepared, tmp_path):
+    scene, prep = prepared
+    config = tiny_config()
+    unbroken = train_run(scene, prep, tmp_path / "a", config, progress=False)
+    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=10)  # "killed" at 10 (ckpt at 8, 10)
+    assert not (tmp_path / "b" / "model.pt").exists()
+    resumed = train_run(scene, prep, tmp_path / "b", config, resume=True, progress=False)
+    for name in ("static", "dynamic"):
+        a, b = getattr(unbroken.model, name), getattr(resumed.model, name)
+        for key in a.params:
+            torch.testing.assert_close(a.params[key], b.params[key], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(unbroken.model.sky.logits, resumed.model.sky.logits)
+
+
+def test_refuses_to_overwrite_a_run_or_resume_with_another_config(prepared, tmp_path):
+    scene, prep = prepared
+    config = tiny_config(optim={"iterations": 4})
+    train_run(scene, prep, tmp_path / "run", config, progress=False)
+    with pytest.raises(TrainingError, match="--resume"):
+        train_run(scene, prep, tmp_path / "run", config, progress=False)
+    with pytest.raises(TrainingError, match="another configuration"):
+        train_run(scene, prep, tmp_path / "run", tiny_config(optim={"iterations": 5}), resume=True, progress=False)
+
+
+def test_missing_prepared_folder_names_it(prepared, tmp_path):
+    scene, _ = prepared
+    with pytest.raises(FileNotFoundError, match="radar4dgs prepare"):
+        train_run(scene, tmp_path / "nothing", tmp_path / "run", tiny_config(), progress=False)
+
+
+def test_nan_loss_is_reported_with_the_step(prepared, tmp_path, monkeypatch):
+    scene, prep = prepared
+    import radar4dgs.train.trainer as trainer
+
+    real = trainer.image_losses
+
+    def broken(*args, **kwargs):
+        losses = real(*args, **kwargs)
+        losses["depth"] = losses["depth"] * float("nan")
+        return losses
+
+    monkeypatch.setattr(trainer, "image_losses", broken)
+    with pytest.raises(TrainingError, match="non-finite loss at iteration 0.*depth"):
+        train_run(scene, prep, tmp_path / "run", tiny_config(), progress=False)
+
+
+def test_static_method_has_no_field_and_no_dynamic_gaussians(prepared, tmp_path):
+    scene, prep = prepared
+    state = train_run(scene, prep, tmp_path / "run", tiny_config(method="static", optim={"iterations": 6}),
+                      progress=False)
+    assert state.model.field is None and state.model.dynamic is None
+    logged = [h for h in state.history if "total" in h]
+    assert all("flow" not in h and "object" not in h for h in logged)
