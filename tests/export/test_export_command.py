@@ -1,0 +1,122 @@
+"""`radar4dgs export RUN --format ply` on one tiny trained run: the file read back holds the model's
+Gaussians (static exactly, dynamic moved by the field to the asked time), and bad inputs are named."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from radar4dgs.cli import main
+from radar4dgs.config import preset
+from radar4dgs.data.synth import SynthConfig, synthesize
+from radar4dgs.evaluate.reconstruction import load_run
+from radar4dgs.export import read_gaussians_ply
+from radar4dgs.export.command import default_export_path, export_run
+from radar4dgs.motion.fit import torch_threads
+from radar4dgs.prepare import PrepareConfig, run_prepare
+from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.model import load_model
+from radar4dgs.train.trainer import train_run
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    with torch_threads(1):
+        yield
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("export")
+    scene = root / "scene"
+    with torch_threads(1):
+        synthesize(preset(SynthConfig, "tiny", seed=4, num_frames=8), scene, progress=False)
+        run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
+        config = preset(TrainConfig, "tiny", threads=1, optim={"iterations": 12},
+                        init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
+        train_run(scene, scene / "prepared", root / "run", config, progress=False)
+    return root / "run"
+
+
+@pytest.fixture(scope="module")
+def model(trained):
+    return load_model(trained / "model.pt")
+
+
+def numpy(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.detach().float().cpu().numpy()
+
+
+def test_static_part_is_the_static_gaussians_exactly(trained, model):
+    result = export_run(trained, part="static")
+    assert result.path == trained / "export" / "scene_static_t0.ply"
+    ply = read_gaussians_ply(result.path)
+    static = model.static.params
+    assert len(ply["means"]) == len(model.static) == result.n_static and result.n_dynamic == 0
+    np.testing.assert_array_equal(ply["means"], numpy(static["means"]))
+    np.testing.assert_array_equal(ply["log_scales"], numpy(static["log_scales"]))
+    np.testing.assert_array_equal(ply["opacity_logits"], numpy(static["opacity_logits"]))
+    np.testing.assert_allclose(ply["rgb"], numpy(torch.sigmoid(static["colors"])), atol=1e-6)
+    quats = numpy(static["quats"] / static["quats"].norm(dim=-1, keepdim=True))
+    np.testing.assert_allclose(ply["quats"], quats, atol=1e-7)
+
+
+def test_all_part_moves_the_dynamic_gaussians_with_the_field(trained, model, tmp_path):
+    assert model.dynamic is not None and len(model.dynamic) > 0 and model.field is not None
+    n_static, n_dynamic = len(model.static), len(model.dynamic)
+    canonical = model.dynamic.params["means"]
+    at_half = read_gaussians_ply(export_run(trained, part="all", time=0.5, out=tmp_path / "half.ply").path)
+    at_zero = read_gaussians_ply(export_run(trained, part="all", time=0.0, out=tmp_path / "zero.ply").path)
+    assert len(at_half["means"]) == model.num_gaussians == n_static + n_dynamic
+    np.testing.assert_array_equal(at_half["means"][:n_static], numpy(model.static.params["means"]))
+    with torch.no_grad():
+        expected_half = numpy(model.field(canonical, 0.5))
+        expected_zero = numpy(model.field(canonical, 0.0))
+    np.testing.assert_allclose(at_half["means"][n_static:], expected_half, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(at_zero["means"][n_static:], expected_zero, rtol=0, atol=1e-6)
+    # The time matters (the objects moved between t=0 and t=0.5) ...
+    assert np.abs(at_half["means"][n_static:] - at_zero["means"][n_static:]).max() > 1e-3
+    # ... and only the positions move: rotations, scales, opacities and colours are the stored ones.
+    for key in ("quats", "log_scales", "opacity_logits", "rgb"):
+        np.testing.assert_array_equal(at_half[key], at_zero[key])
+    quats = model.dynamic.params["quats"]
+    np.testing.assert_allclose(at_half["quats"][n_static:], numpy(quats / quats.norm(dim=-1, keepdim=True)),
+                               atol=1e-7)
+
+
+def test_cli_default_path_and_a_model_without_dynamics(trained, model, tmp_path, capsys):
+    assert main(["export", str(trained), "--time", "1", "--sh-degree", "0"]) == 0
+    out = capsys.readouterr().out
+    assert f"{model.num_gaussians} Gaussians" in out and "positions only" in out
+    path = default_export_path(trained, "all", 1.0)
+    assert path.name == "scene_all_t1.ply" and read_gaussians_ply(path)["sh_degree"] == 0
+
+    static_only = load_run(trained)  # a fresh copy: the module's model stays intact
+    static_only.model.dynamic = None
+    result = export_run(static_only, part="all", out=tmp_path / "static_only.ply")
+    assert result.n_dynamic == 0 and len(read_gaussians_ply(result.path)["means"]) == len(model.static)
+
+
+def test_bad_inputs_give_clear_errors(trained, tmp_path, capsys):
+    with pytest.raises(ValueError, match="unknown export format 'obj'; supported: ply"):
+        export_run(trained, fmt="obj")
+    with pytest.raises(SystemExit) as info:  # the command line refuses it before running
+        main(["export", str(trained), "--format", "obj"])
+    assert info.value.code == 2
+    with pytest.raises(ValueError, match="unknown part 'dynamic'"):
+        export_run(trained, part="dynamic")
+    for bad in (1.5, -0.1, float("nan")):
+        with pytest.raises(ValueError, match=r"--time must be a normalised scene time in \[0, 1\]"):
+            export_run(trained, time=bad)
+    assert main(["export", str(trained), "--time", "2"]) == 1
+    assert "--time must be a normalised scene time in [0, 1]" in capsys.readouterr().err
+    assert not (trained / "export" / "scene_all_t2.ply").exists()
+
+    empty = tmp_path / "run_without_model"
+    empty.mkdir()
+    (empty / "config.json").write_text((trained / "config.json").read_text())
+    with pytest.raises(FileNotFoundError, match="model.pt: missing; is .* a finished `radar4dgs train` run"):
+        export_run(empty)
+    assert main(["export", str(empty)]) == 1
+    assert "model.pt: missing" in capsys.readouterr().err
