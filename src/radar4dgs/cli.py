@@ -24,11 +24,18 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("radar4dgs.demo", "DemoCommand"),
     "synth": ("radar4dgs.data.synth.command", "SynthCommand"),
     "convert aimotive": ("radar4dgs.data.convert.aimotive", "ConvertAimotiveCommand"),
+    "convert omnihd": ("radar4dgs.data.convert.omnihd", "ConvertOmnihdCommand"),
+    "convert vod": ("radar4dgs.data.convert.vod", "ConvertVodCommand"),
     "inspect": ("radar4dgs.data.inspect", "InspectCommand"),
     "seg-train": ("radar4dgs.segment.command", "SegTrainCommand"),
     "prepare": ("radar4dgs.prepare", "PrepareCommand"),
     "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand"),
     "fit-motion": ("radar4dgs.motion.command", "FitMotionCommand"),
+    "train": ("radar4dgs.train.command", "TrainCommand"),
+    "eval": ("radar4dgs.evaluate.reconstruction", "EvalCommand"),
+    "render": ("radar4dgs.render.command", "RenderCommand"),
+    "export": ("radar4dgs.export.command", "ExportCommand"),
+    "view": ("radar4dgs.export.viewer", "ViewCommand"),
 }
 
 
