@@ -8,35 +8,18 @@ import pytest
 import torch
 
 from radar4dgs.cli import main
-from radar4dgs.config import preset
-from radar4dgs.data.synth import SynthConfig, synthesize
 from radar4dgs.evaluate.reconstruction import load_run
 from radar4dgs.export import read_gaussians_ply
 from radar4dgs.export.command import default_export_path, export_run
-from radar4dgs.motion.fit import torch_threads
-from radar4dgs.prepare import PrepareConfig, run_prepare
-from radar4dgs.train.config import TrainConfig
 from radar4dgs.train.model import load_model
-from radar4dgs.train.trainer import train_run
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    with torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    root = tmp_path_factory.mktemp("export")
-    scene = root / "scene"
-    with torch_threads(1):
-        synthesize(preset(SynthConfig, "tiny", seed=4, num_frames=8), scene, progress=False)
-        run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
-        config = preset(TrainConfig, "tiny", threads=1, optim={"iterations": 12},
-                        init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
-        train_run(scene, scene / "prepared", root / "run", config, progress=False)
-    return root / "run"
+def trained(tiny_trained_run):
+    return tiny_trained_run / "run"
 
 
 @pytest.fixture(scope="module")

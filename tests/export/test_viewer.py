@@ -16,36 +16,20 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from radar4dgs.cli import main
-from radar4dgs.config import preset
-from radar4dgs.data.synth import SynthConfig, synthesize
 from radar4dgs.evaluate.reconstruction import load_run, to_uint8
 from radar4dgs.export.viewer import (DISPLAY_RENDER, DISPLAY_SPLATS, ViewerUnavailable, camera_to_viser,
                                      pinhole_intrinsics, require_viser, splat_covariances,
                                      viser_to_world_to_camera)
-from radar4dgs.motion.fit import normalized_times, torch_threads
-from radar4dgs.prepare import PrepareConfig, run_prepare
-from radar4dgs.train.config import TrainConfig
+from radar4dgs.motion.fit import normalized_times
 from radar4dgs.train.data import frame_view
-from radar4dgs.train.trainer import train_run
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    with torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    root = tmp_path_factory.mktemp("viewer")
-    scene = root / "scene"
-    with torch_threads(1):
-        synthesize(preset(SynthConfig, "tiny", seed=4, num_frames=8), scene, progress=False)
-        run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
-        config = preset(TrainConfig, "tiny", threads=1, optim={"iterations": 12},
-                        init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
-        train_run(scene, scene / "prepared", root / "run", config, progress=False)
-    return root / "run"
+def trained(tiny_trained_run):
+    return tiny_trained_run / "run"
 
 
 def test_camera_conversions_round_trip_and_match_opencv_axes():

@@ -13,39 +13,23 @@ import torch
 from PIL import Image
 
 from radar4dgs.cli import main
-from radar4dgs.config import preset
-from radar4dgs.data.synth import SynthConfig, synthesize
 from radar4dgs.evaluate.reconstruction import evaluate_run, load_run, to_uint8
-from radar4dgs.motion.fit import normalized_times, torch_threads
-from radar4dgs.prepare import PrepareConfig, run_prepare
+from radar4dgs.motion.fit import normalized_times
 from radar4dgs.render.command import NonFiniteRenderError, render_trajectory, trajectory_slug
 from radar4dgs.render.trajectory import CameraPose, parse_trajectory, write_custom_trajectory
-from radar4dgs.train.config import TrainConfig
 from radar4dgs.train.data import frame_view
-from radar4dgs.train.trainer import train_run
 
-N_FRAMES = 8
+N_FRAMES = 8  # frames of the shared tiny run (tests/conftest.py)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    with torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    """A tiny trained run, evaluated once (eval's PNGs are the reference of the recorded path)."""
-    root = tmp_path_factory.mktemp("render")
-    scene = root / "scene"
-    with torch_threads(1):
-        synthesize(preset(SynthConfig, "tiny", seed=4, num_frames=N_FRAMES), scene, progress=False)
-        run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
-        config = preset(TrainConfig, "tiny", threads=1, optim={"iterations": 12},
-                        init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
-        train_run(scene, scene / "prepared", root / "run", config, progress=False)
-        evaluate_run(root / "run", lpips=False, video=False, report=False, progress=False)
-    return root / "run"
+def trained(tiny_trained_run):
+    """The shared tiny run, evaluated (eval's PNGs are the reference of the recorded path)."""
+    evaluate_run(tiny_trained_run / "run", lpips=False, video=False, report=False, progress=False)
+    return tiny_trained_run / "run"
 
 
 @pytest.fixture(scope="module")
