@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-# mkstemp creates 0600 files; a video is shared like any other output (as data.atomic does).
-_FILE_MODE = 0o644
-
+from radar4dgs.data.atomic import atomic_path
 
 def _check_frame(frame: np.ndarray, index: int, shape: tuple[int, ...] | None) -> np.ndarray:
     frame = np.asarray(frame)
@@ -56,12 +53,8 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
         raise ValueError(f"write_video: no frames for {path}") from None
     first = _check_frame(first, 0, None)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     # The ".mp4" suffix is for ffmpeg, which picks the container from the name.
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.mp4", dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
-    try:
+    with atomic_path(path, suffix=".tmp.mp4") as tmp:
         # macro_block_size=1: imageio would otherwise resize to multiples of 16; the even sizes
         # that H.264 needs are made by _pad_to_even.
         writer = imageio.get_writer(
@@ -78,9 +71,4 @@ def write_video(frames: Iterable[np.ndarray], path: str | os.PathLike, fps: floa
                 writer.close()
             raise
         writer.close()
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
