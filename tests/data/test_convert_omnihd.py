@@ -15,6 +15,7 @@ from radar4dgs.data.convert.omnihd import CAMERA, LIDAR, RADAR, convert_omnihd
 from radar4dgs.data.inspect import InspectCommand, summarize_scene
 from radar4dgs.data.scene import SceneError, read_scene
 from radar4dgs.prepare import run_prepare
+from _convert_helpers import rigid, yaw
 
 CLIP = "1693714828633418"
 T0 = int(CLIP)
@@ -32,28 +33,16 @@ N_INVALID, N_NAN = 3, 1
 CV_TO_EGO = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def _rigid(R: np.ndarray, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
-
-
-def _yaw(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 # Global frame: far from the origin and turned, so re-basing is tested.
-GLOBAL_FROM_EGO0 = _rigid(_yaw(np.radians(30.0)), [1000.0, 2000.0, 5.0])
-CAM_TO_EGO = _rigid(CV_TO_EGO, CAM_T)
-RADAR_TO_EGO = _rigid(np.eye(3), RADAR_T)
+GLOBAL_FROM_EGO0 = rigid(yaw(np.radians(30.0)), [1000.0, 2000.0, 5.0])
+CAM_TO_EGO = rigid(CV_TO_EGO, CAM_T)
+RADAR_TO_EGO = rigid(np.eye(3), RADAR_T)
 
 
 def ego_pose(t_us: int) -> np.ndarray:
     """(4, 4) ego -> global at time ``t_us``: straight along the first ego x axis at SPEED."""
     t = (t_us - (T0 + CAMERA_DELAY)) * 1e-6
-    return GLOBAL_FROM_EGO0 @ _rigid(np.eye(3), [SPEED * t, 0.0, 0.0])
+    return GLOBAL_FROM_EGO0 @ rigid(np.eye(3), [SPEED * t, 0.0, 0.0])
 
 
 def static_targets(marker: np.ndarray = MARKER) -> np.ndarray:

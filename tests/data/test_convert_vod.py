@@ -15,6 +15,7 @@ from radar4dgs.data.convert.vod import convert_vod, parse_range, sequence_breaks
 from radar4dgs.data.inspect import summarize_scene
 from radar4dgs.data.scene import SceneError, read_scene
 from radar4dgs.prepare import run_prepare
+from _convert_helpers import rigid, yaw
 
 WIDTH, HEIGHT = 64, 48
 P2 = np.array([[50.0, 0.0, 32.0, 0.0], [0.0, 50.0, 24.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
@@ -28,22 +29,10 @@ MOVER_V_R_COMP = 3.0
 N_OLDER, N_NAN = 2, 1
 
 
-def _rigid(R: np.ndarray, t) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
-
-
-def _yaw(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 # Camera 2 m behind, 0.1 m left of and 0.9 m above the radar, looking along the radar's x axis.
-CAM_TO_RADAR = _rigid(CV_TO_FLU, [-2.0, 0.1, 0.9])
+CAM_TO_RADAR = rigid(CV_TO_FLU, [-2.0, 0.1, 0.9])
 RADAR_TO_CAM = np.linalg.inv(CAM_TO_RADAR)
-LIDAR_TO_RADAR = _rigid(np.eye(3), [-1.0, 0.0, 1.2])
+LIDAR_TO_RADAR = rigid(np.eye(3), [-1.0, 0.0, 1.2])
 
 
 def radar_pose(n: int) -> np.ndarray:
@@ -52,7 +41,7 @@ def radar_pose(n: int) -> np.ndarray:
     150 m before frame 10 (its earlier frames are not in the fake folder)."""
     start = next(s for s in (SEQ_A, SEQ_B, SEQ_C) if n in s).start
     driven = SPEED * 0.1 * (n - start) + (150.0 if n in SEQ_A else 0.0)
-    return _rigid(_yaw(np.radians(20.0)), [3.0, -4.0, 0.0]) @ _rigid(np.eye(3), [driven, 0.0, 0.0])
+    return rigid(yaw(np.radians(20.0)), [3.0, -4.0, 0.0]) @ rigid(np.eye(3), [driven, 0.0, 0.0])
 
 
 def targets_world(n: int) -> np.ndarray:
@@ -248,13 +237,13 @@ def test_range_parsing_and_break_detection():
         parse_range("5:5")
     still = [np.eye(4)] * 3
     turned = np.eye(4)
-    turned[:3, :3] = _yaw(1.0)
+    turned[:3, :3] = yaw(1.0)
     assert sequence_breaks(["a", "b", "c"], still, 0.1, 40.0) == []
     breaks = sequence_breaks(["a", "b", "c"], [np.eye(4), turned, turned], 0.1, 40.0)
     assert [(a, b) for a, b, _ in breaks] == [("a", "b")] and "turns 57 deg" in breaks[0][2]
 
     def drive(xs):
-        return [_rigid(np.eye(3), [x, 0.0, 0.0]) for x in xs]
+        return [rigid(np.eye(3), [x, 0.0, 0.0]) for x in xs]
 
     names = ["a", "b", "c", "d", "e"]
     # A short sequence ends 3 m from its origin; the next starts at its own: a 3 m step back,
