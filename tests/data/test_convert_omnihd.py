@@ -200,15 +200,16 @@ def test_lidar_is_in_the_camera_time_ego_frame(converted):
         assert lidar[0, 3] == 7.0
 
 
-def test_inspect_and_prepare_radar_accept_the_scene(converted, tmp_path):
+def test_inspect_and_prepare_accept_the_scene(converted, tmp_path):
     _, scene = converted
     summary = summarize_scene(scene)
     assert summary["frames"] == 4 and summary["warnings"] == []
     assert summary["ego_speed_from_poses_mps"]["mean"] == pytest.approx(SPEED, rel=1e-3)
     assert InspectCommand(scene.root, sheet=tmp_path / "sheet.png", frames=2).run() == 0
     assert (tmp_path / "sheet.png").is_file()
-    status = run_prepare(scene.root, tmp_path / "prepared", only=("radar",), progress=False)
-    assert status == {"radar": "ran"}
+    # The whole front end runs (depth falls back to the weight-free flat-world prior).
+    status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "flow": "ran"}
     radar_summary = json.loads((tmp_path / "prepared" / "radar" / "summary.json").read_text())
     assert radar_summary["num_ok"] == 4
     # The Doppler fit agrees with the poses: the sign and the radar's own times are right.

@@ -176,11 +176,13 @@ def test_lidar_goes_to_the_ego_frame(converted):
     assert lidar[0, 3] == 0.25
 
 
-def test_inspect_and_prepare_radar_accept_the_scene(converted, tmp_path):
+def test_inspect_and_prepare_accept_the_scene(converted, tmp_path):
     _, scene = converted
     assert summarize_scene(scene)["ego_speed_from_poses_mps"]["mean"] == pytest.approx(SPEED)
     assert main(["inspect", str(scene.root), "--sheet", str(tmp_path / "sheet.png")]) == 0
-    assert run_prepare(scene.root, tmp_path / "prepared", only=("radar",), progress=False) == {"radar": "ran"}
+    # The whole front end runs (depth falls back to the weight-free flat-world prior).
+    status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "flow": "ran"}
     summary = json.loads((tmp_path / "prepared" / "radar" / "summary.json").read_text())
     assert summary["num_ok"] == 4 and summary["disagreement"]["rmse"] < 0.05
     assert all(f["dynamic"] == 1 for f in summary["frames"])  # the 3 m/s mover
