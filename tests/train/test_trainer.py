@@ -235,3 +235,15 @@ def test_static_method_has_no_field_and_no_dynamic_gaussians(prepared, tmp_path)
     assert state.model.field is None and state.model.dynamic is None
     logged = [h for h in state.history if "total" in h]
     assert all("flow" not in h and "object" not in h for h in logged)
+
+
+def test_coarse_to_fine_renders_early_iterations_at_the_coarse_scale(prepared, tmp_path):
+    scene, prep = prepared
+    config = tiny_config(coarse_scale=0.5, coarse_until=0.5, optim={"iterations": 6}, densify={"every": 0})
+    trainer = Trainer(scene, prep, tmp_path / "run", config, progress=False)
+    state = trainer.train()
+    full, coarse = trainer.targets[0], trainer.coarse_targets[0]
+    assert (coarse.view.width, coarse.view.height) == (full.view.width // 2, full.view.height // 2)
+    assert coarse.image.shape == (full.view.height // 2, full.view.width // 2, 3)
+    sizes = [h["width"] for h in state.history if "total" in h]
+    assert sizes == [coarse.view.width] * 3 + [full.view.width] * 3

@@ -17,8 +17,6 @@ Adam moments, densification statistics) continues exactly as the unbroken run wo
 
 from __future__ import annotations
 
-import contextlib
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -149,7 +147,7 @@ def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
 
 
 def check_finite(losses: dict[str, Tensor], step: int) -> None:
-    bad = {name: float(v) for name, v in losses.items() if not torch.isfinite(v)}
+    bad = {name: float(v.detach()) for name, v in losses.items() if not torch.isfinite(v)}
     if bad:
         raise TrainingError(f"non-finite loss at iteration {step}: {bad}; the last checkpoint is kept "
                             f"(resume with --resume after changing the config)")
@@ -259,10 +257,15 @@ class Trainer:
         self.times = normalized_times(self.scene)
         self.extent = scene_extent(self.scene)
         self.train_indices = self.scene.train_indices
-        self.targets = [load_frame_targets(self.scene, self.prepared, i, self.config.resolution_scale, self.times,
-                                           self.device, self.dtype) for i in self.train_indices]
+        self.targets = self._targets(self.config.resolution_scale)
+        self.coarse_targets = self._targets(self.config.resolution_scale * self.config.coarse_scale) \
+            if self.config.coarse_scale < 1.0 and self.config.coarse_until > 0 else self.targets
         self.motion = load_motion_targets(self.scene, self.prepared, self.config) \
             if self.config.method == "ours" else None
+
+    def _targets(self, scale: float) -> list[FrameTargets]:
+        return [load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype)
+                for i in self.train_indices]
 
     def _fresh_state(self) -> RunState:
         config, device, dtype = self.config, self.device, self.dtype
@@ -400,7 +403,8 @@ class Trainer:
             self._start_dynamic(state)
         set_learning_rates(state, config, self.extent, step)
         n = len(self.targets)
-        target = self.targets[int(frame_order(config.seed, step // n, n)[step % n])]
+        targets = self.coarse_targets if step < config.coarse_until * config.optim.iterations else self.targets
+        target = targets[int(frame_order(config.seed, step // n, n)[step % n])]
         generator = step_generator(config.seed, step)
         model = state.model
         keep, scale = None, 1.0
@@ -431,7 +435,8 @@ class Trainer:
                 state.optimizers[name].step()
         self._densify(state, render, stage, trainable, generator)
         if step % config.log_every == 0 or step == config.optim.iterations - 1:
-            state.history.append({"step": step, "stage": stage, "frame": target.name, "total": float(loss.detach()),
+            state.history.append({"step": step, "stage": stage, "frame": target.name, "width": target.view.width,
+                                  "total": float(loss.detach()),
                                   "psnr": psnr_of(render["rgb"], target.image), "num_gaussians": model.num_gaussians,
                                   **{k: float(v.detach()) for k, v in losses.items()}})
 
