@@ -92,3 +92,12 @@ def test_missing_model_is_named(tmp_path):
     (tmp_path / "run").mkdir()
     with pytest.raises(FileNotFoundError, match="run.json"):
         evaluate_run(tmp_path / "run", progress=False)
+
+
+def test_report_plots_only_loss_terms():
+    from radar4dgs.evaluate.reconstruction import loss_curves
+
+    history = [{"step": 0, "stage": 1, "frame": "000001", "width": 160, "total": 1.0, "l1": 0.5, "psnr": 20.0,
+                "num_gaussians": 5000},
+               {"step": 9, "densify": "static", "cloned": 3, "num_gaussians": 5003}]
+    assert loss_curves(history) == [{"step": 0, "psnr": 20.0, "total": 1.0, "l1": 0.5}]

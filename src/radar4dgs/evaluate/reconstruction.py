@@ -37,7 +37,7 @@ from radar4dgs.motion.fit import normalized_times
 from radar4dgs.train.config import TrainConfig
 from radar4dgs.train.data import frame_view
 from radar4dgs.train.model import SceneModel, load_model
-from radar4dgs.train.trainer import CONFIG_FILE, HISTORY_FILE, MODEL_FILE, RUN_FILE
+from radar4dgs.train.trainer import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, MODEL_FILE, RUN_FILE
 
 METRICS_FILE = "metrics.json"
 RENDERS_DIR = "renders"
@@ -181,10 +181,17 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
 
         history_path = run.root / HISTORY_FILE
         history = json.loads(history_path.read_text())["history"] if history_path.is_file() else []
-        write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.name}",
+        write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.resolve()}",
                      metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
-                     per_frame=per_frame, history=[h for h in history if "total" in h], panels=panels)
+                     per_frame=per_frame, history=loss_curves(history), panels=panels)
     return metrics
+
+
+def loss_curves(history: list[dict]) -> list[dict]:
+    """The training log's loss terms and PSNR per logged step (densification events and
+    bookkeeping such as the stage or the Gaussian count left out)."""
+    keep = ("step", "psnr", "total", *LOSS_TERMS)
+    return [{k: h[k] for k in keep if k in h} for h in history if "total" in h]
 
 
 def format_metrics(metrics: dict[str, Any]) -> str:

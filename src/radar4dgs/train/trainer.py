@@ -48,6 +48,8 @@ MODEL_FILE = "model.pt"
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.pt"
 HISTORY_FILE = "history.json"
+# The named terms of the training loss, as logged in history.json.
+LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
 
 
 class TrainingError(RuntimeError):
@@ -138,11 +140,16 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
     return losses
 
 
+def loss_weights(config: TrainConfig) -> dict[str, float]:
+    """The weight of each named loss term (the keys are :data:`LOSS_TERMS`)."""
+    c = config.losses
+    return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
+            "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
+
+
 def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
     """The weighted sum of the named terms (absent terms count 0)."""
-    c = config.losses
-    weights = {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
-               "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
+    weights = loss_weights(config)
     return sum(weights[name] * value for name, value in losses.items())
 
 
