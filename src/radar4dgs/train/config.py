@@ -110,8 +110,9 @@ class TrainConfig:
     # Render and supervise at this fraction of the scene resolution (1 = full).
     resolution_scale: float = 1.0
     # Coarse-to-fine: iterations before coarse_until (fraction of the run) render at
-    # coarse_scale x resolution_scale. A half-resolution iteration costs about a third of a full one
-    # on the CPU rasterizer, and the first thousands of iterations mostly fix colours and opacities.
+    # coarse_scale x resolution_scale. The early iterations mostly fix colours and opacities and do
+    # not need the full image; on the CPU the saving is modest, since projecting and sorting the
+    # Gaussians does not shrink with the image.
     coarse_scale: float = 1.0
     coarse_until: float = 0.0
     # Save a checkpoint every this many iterations (and at the end); 0 = only at the end.
