@@ -36,7 +36,7 @@ from radar4dgs.evaluate.image_metrics import LpipsScorer, lpips_or_none, psnr, s
 from radar4dgs.motion.fit import normalized_times
 from radar4dgs.train.config import TrainConfig
 from radar4dgs.train.data import frame_view
-from radar4dgs.train.model import SceneModel, load_model
+from radar4dgs.train.model import SceneModel, View, load_model
 from radar4dgs.train.trainer import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, MODEL_FILE, RUN_FILE
 
 METRICS_FILE = "metrics.json"
@@ -77,23 +77,26 @@ def to_uint8(image: torch.Tensor) -> np.ndarray:
 
 
 @torch.no_grad()
-def render_frame(run: Run, index: int) -> dict[str, torch.Tensor]:
-    """Render frame ``index`` at full resolution: ``rgb`` (H, W, 3), ``depth`` (H, W),
-    ``alpha`` (H, W), ``dynamic`` (H, W)."""
-    times = normalized_times(run.scene)
-    view = frame_view(run.scene, index, 1.0, times)
+def render_view(run: Run, view: View) -> dict[str, torch.Tensor]:
+    """Render ``view`` with the run's model and rasterizer settings, no gradient, no dropout:
+    ``rgb`` (H, W, 3), ``depth`` (H, W), ``alpha`` (H, W), ``dynamic`` (H, W)."""
     out = run.model.render(view, run.config.raster)
     return {k: out[k] for k in ("rgb", "depth", "alpha", "dynamic")}
 
 
-def dynamic_mask(run: Run, index: int) -> tuple[np.ndarray, str]:
-    """The PSNR* mask of frame ``index``: ``gt/dynamic_mask`` when the scene has it, else the
-    predicted (prepared) mask; returns the bool (H, W) mask and its source name."""
-    if run.scene.has("gt/dynamic_mask"):
-        return run.scene.load_optional("gt/dynamic_mask", index), "gt"
+def mask_source(run: Run) -> str:
+    """Where the PSNR* masks come from: "gt" when the scene has a complete ``gt/dynamic_mask``,
+    else "predicted" (the prepared masks)."""
+    return "gt" if run.scene.has("gt/dynamic_mask") else "predicted"
+
+
+def dynamic_mask(run: Run, index: int, source: str) -> np.ndarray:
+    """The bool (H, W) PSNR* mask of frame ``index`` from ``source`` (:func:`mask_source`)."""
+    if source == "gt":
+        return run.scene.load_optional("gt/dynamic_mask", index)
     name = run.scene.frames[index].name
     shape = (run.scene.camera.height, run.scene.camera.width)
-    return read_mask_png(run.prepared / "masks" / f"{name}.png", shape), "predicted"
+    return read_mask_png(run.prepared / "masks" / f"{name}.png", shape)
 
 
 def radar_overlay(scene, index: int, image: np.ndarray) -> np.ndarray:
@@ -120,8 +123,10 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
     scene = run.scene
     scorers: dict[str, LpipsScorer | None] = {net: (lpips_or_none(net) if lpips else None) for net in ("vgg", "alex")}
     test = set(scene.test_indices)
+    times = normalized_times(scene)
+    source = mask_source(run)
     per_frame: dict[str, list[dict]] = {"recon": [], "nvs": []}
-    sources, frames_video, panels = set(), [], []
+    frames_video, panels = [], []
     indices = range(len(scene))
     if progress:
         from tqdm import tqdm
@@ -135,11 +140,10 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         for index in indices:
             name = scene.frames[index].name
             split = "nvs" if index in test else "recon"
-            out = render_frame(run, index)
+            out = render_view(run, frame_view(scene, index, 1.0, times))
             device_ = out["rgb"].device
             gt = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0, device=device_)
-            mask, source = dynamic_mask(run, index)
-            sources.add(source)
+            mask = dynamic_mask(run, index, source)
             mask_t = torch.as_tensor(mask, device=device_)
             rgb = out["rgb"].clamp(0, 1)
             entry = {"frame": name, "index": index, "psnr": psnr(rgb, gt), "ssim": ssim(rgb, gt),
@@ -165,7 +169,7 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                                "psnr": f"{entry['psnr']:.2f} dB"})
     metrics: dict[str, Any] = {
         "recon": summarize_frames(per_frame["recon"]), "nvs": summarize_frames(per_frame["nvs"]),
-        "mask_source": "gt" if sources == {"gt"} else ("predicted" if sources == {"predicted"} else "mixed"),
+        "mask_source": source,
         "lpips_available": all(s is not None for s in scorers.values()),
         "method": run.config.method, "num_gaussians": run.model.num_gaussians,
         "per_frame": per_frame,

@@ -69,23 +69,6 @@ def trajectory_slug(spec: TrajectorySpec, interpolate: int = 1, scale: float = 1
     return re.sub(r"[^A-Za-z0-9.+-]+", "_", body).strip("_") or "trajectory"
 
 
-def render_size(width: int, height: int, scale: float) -> tuple[int, int]:
-    """(width, height) of the recorded image at ``scale`` (at least 1 pixel each)."""
-    return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def pose_view(pose: CameraPose, K: np.ndarray, width: int, height: int, scale: float = 1.0):
-    """The model's :class:`~radar4dgs.train.model.View` of ``pose`` for a camera of intrinsics
-    ``K`` (3, 3) and ``width`` x ``height`` pixels, rendered at ``scale``."""
-    from radar4dgs.train.model import View, scale_intrinsics
-
-    w, h = render_size(width, height, scale)
-    # The ratio of the rounded widths, not ``scale`` itself, as the trainer does (frame_view): the
-    # focal length then matches the image actually rendered.
-    return View(np.asarray(pose.world_to_camera, dtype=np.float64), scale_intrinsics(K, w / width), w, h,
-                float(pose.time))
-
-
 def check_finite(out: dict, where: str) -> None:
     """Raise :class:`NonFiniteRenderError` naming ``where`` if a rendered map has NaN/inf."""
     for key in _CHECKED:
@@ -102,9 +85,10 @@ def check_finite(out: dict, where: str) -> None:
 def render_pose(run, pose: CameraPose, scale: float = 1.0) -> dict[str, torch.Tensor]:
     """Render ``pose`` with ``run``'s model (no gradient, no dropout) at ``scale`` of the recorded
     resolution: ``rgb`` (H, W, 3), ``depth`` (H, W), ``alpha`` (H, W), ``dynamic`` (H, W)."""
-    camera = run.scene.camera
-    out = run.model.render(pose_view(pose, camera.K, camera.width, camera.height, scale), run.config.raster)
-    return {k: out[k] for k in _CHECKED}
+    from radar4dgs.evaluate.reconstruction import render_view
+    from radar4dgs.train.data import camera_view
+
+    return render_view(run, camera_view(run.scene.camera, pose.world_to_camera, pose.time, scale))
 
 
 def recorded_cameras(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +111,7 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
     from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, RENDERS_DIR, Run, load_run, to_uint8
     from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
     from radar4dgs.render.trajectory import write_custom_trajectory
+    from radar4dgs.train.data import resized_size
 
     if isinstance(interpolate, bool) or not isinstance(interpolate, int) or interpolate < 1:
         raise ValueError(f"--interpolate must be an integer >= 1, got {interpolate!r}")
@@ -141,7 +126,7 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
     slug = trajectory_slug(spec, interpolate, scale)
     frames_dir = Path(out) if out is not None else run.root / RENDERS_DIR / slug
     video_path = (frames_dir / f"{slug}.mp4" if out is not None else run.root / f"{slug}.mp4") if video else None
-    width, height = render_size(run.scene.camera.width, run.scene.camera.height, scale)
+    width, height = resized_size(run.scene.camera.width, run.scene.camera.height, scale)
     # The folder is replaced whole: refuse to replace one that is not an earlier rendering (a
     # mistyped --out must not wipe an unrelated folder).
     if frames_dir.exists() and (not frames_dir.is_dir() or (any(frames_dir.iterdir())

@@ -52,11 +52,18 @@ def resize_nearest(array: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return out.astype(dtype)
 
 
+def camera_view(camera, world_to_camera: np.ndarray, time: float, scale: float = 1.0) -> View:
+    """The :class:`View` of the scene's ``camera`` at pose ``world_to_camera`` (4, 4) and normalised
+    ``time``, rendered at ``scale`` of its resolution. K is scaled by the ratio of the rounded
+    widths, not by ``scale`` itself, so the focal length matches the image actually rendered."""
+    width, height = resized_size(camera.width, camera.height, scale)
+    return View(np.asarray(world_to_camera, dtype=np.float64), scale_intrinsics(camera.K, width / camera.width),
+                width, height, float(time))
+
+
 def frame_view(scene, index: int, scale: float, times: np.ndarray) -> View:
     """The :class:`View` of frame ``index`` at resolution ``scale``."""
-    width, height = resized_size(scene.camera.width, scene.camera.height, scale)
-    return View(scene.world_to_camera(index), scale_intrinsics(scene.camera.K, width / scene.camera.width),
-                width, height, float(times[index]))
+    return camera_view(scene.camera, scene.world_to_camera(index), times[index], scale)
 
 
 @dataclass
