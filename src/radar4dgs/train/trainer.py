@@ -190,11 +190,6 @@ def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:
             "max_scale": i.max_scale, "device": device, "dtype": dtype}
 
 
-def initial_points(scene: Scene, prepared: Path, config: TrainConfig) -> dict[str, np.ndarray]:
-    """The back-projected training frames (deterministic given the init seed)."""
-    return backproject_frames(scene, prepared, config.init)
-
-
 def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformation: DeformationField,
                       config: TrainConfig, device, dtype) -> GaussianSet:
     """Dynamic Gaussians at the canonical positions of their frames' world points."""
@@ -254,6 +249,7 @@ class Trainer:
         self.log = log
         self.device = torch.device(config.device)
         self.dtype = torch.float32
+        self._points: dict[str, np.ndarray] | None = None
 
     # ---- set-up
     def _load(self) -> None:
@@ -270,13 +266,20 @@ class Trainer:
         self.motion = load_motion_targets(self.scene, self.prepared, self.config) \
             if self.config.method == "ours" else None
 
+    def _initial_points(self) -> dict[str, np.ndarray]:
+        """The back-projected training frames (deterministic given the init seed), computed once:
+        the static Gaussians start from them and, at stage 2, the dynamic ones."""
+        if self._points is None:
+            self._points = backproject_frames(self.scene, self.prepared, self.config.init)
+        return self._points
+
     def _targets(self, scale: float) -> list[FrameTargets]:
         return [load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype)
                 for i in self.train_indices]
 
     def _fresh_state(self) -> RunState:
         config, device, dtype = self.config, self.device, self.dtype
-        points = initial_points(self.scene, self.prepared, config)
+        points = self._initial_points()
         dyn = points["dynamic"] if config.method == "ours" else np.zeros(len(points["dynamic"]), bool)
         static = GaussianSet.from_points(points["points"][~dyn], points["colors"][~dyn],
                                          **gaussian_kwargs(config, device, dtype))
@@ -297,7 +300,7 @@ class Trainer:
 
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
-        points = initial_points(self.scene, self.prepared, self.config)
+        points = self._initial_points()
         dynamic = dynamic_gaussians(points, self.times, state.model.field, self.config, self.device, self.dtype)
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
