@@ -11,6 +11,7 @@ import tyro
 
 from radar4dgs.config import PresetName
 from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.variants import MethodName
 
 
 @dataclass
@@ -27,6 +28,9 @@ class TrainCommand:
     preset: PresetName = "small"
     # Everything the trainer does (filled from --preset, then overridden by options).
     config: TrainConfig = field(default_factory=TrainConfig)
+    # A named method (a baseline or an ablation, see the README's table); it sets its own config
+    # fields on top of the preset and the options. Default: the config as given (ours).
+    method: Optional[MethodName] = None
     # Continue the run in --out from its last checkpoint.
     resume: bool = False
     # Evaluate the run when training ends (as `radar4dgs eval RUN`).
@@ -39,10 +43,12 @@ class TrainCommand:
     def run(self) -> int:
         from radar4dgs.data.scene import SceneError
         from radar4dgs.train.trainer import TrainingError, train_run
+        from radar4dgs.train.variants import apply_variant
 
         prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
         try:
-            train_run(self.scene, prepared, self.out, self.config, resume=self.resume, progress=not self.quiet)
+            config = self.config if self.method is None else apply_variant(self.config, self.method)
+            train_run(self.scene, prepared, self.out, config, resume=self.resume, progress=not self.quiet)
         except (SceneError, FileNotFoundError, ValueError, TrainingError) as exc:
             print(f"radar4dgs train: {exc}", file=sys.stderr)
             return 1

@@ -14,10 +14,16 @@ from typing import Any, ClassVar, Literal, Mapping
 from radar4dgs.motion.field import FieldConfig
 from radar4dgs.render.api import RasterConfig
 from radar4dgs.train.gaussians import GaussianInitConfig
+from radar4dgs.train.motion_models import BaselineConfig
 
 # "ours": static + dynamic Gaussians moved by the VGPT field; "static": every Gaussian static, no
-# field (the same trainer with dynamics switched off).
-Method = Literal["ours", "static"]
+# field (the same trainer with dynamics switched off); "deformable", "pvg", "bspline": the
+# baselines' motion models (train.motion_models). Ablations of "ours" are config changes, named in
+# train.variants.
+Method = Literal["ours", "static", "deformable", "pvg", "bspline"]
+# Where the dynamic masks come from: the prepared ones (the segmentation network), the non-learned
+# radar flood-fill baseline (computed once into prepared/masks_baseline), or ground truth (oracle).
+MaskSource = Literal["predicted", "baseline", "gt"]
 
 
 @dataclass
@@ -103,8 +109,11 @@ class DensifyConfig:
 class TrainConfig:
     """Everything `radar4dgs train` needs besides the scene and its prepared folder."""
 
-    # "ours" (static + dynamic Gaussians and the VGPT field) or "static" (dynamics off).
+    # "ours" (static + dynamic Gaussians and the VGPT field), "static" (dynamics off), or a
+    # baseline's motion model: "deformable", "pvg", "bspline".
     method: Method = "ours"
+    # Dynamic masks used for the static/dynamic split, the image losses and the object loss.
+    mask_source: MaskSource = "predicted"
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).
@@ -130,6 +139,8 @@ class TrainConfig:
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     raster: RasterConfig = dataclasses.field(default_factory=RasterConfig)
+    # The baselines' motion models (deformable, pvg, bspline).
+    baselines: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
     # Sky map size (texels, equirectangular).
     sky_height: int = 64
     sky_width: int = 128
@@ -167,9 +178,9 @@ class TrainConfig:
                 raise ValueError(f"{name} must lie in (0, 1], got {getattr(self, name)}")
 
     def stage_at(self, step: int) -> int:
-        """The training stage (1, 2 or 3) of iteration ``step`` (0-based); the "static" method has
-        no dynamic stages and stays in stage 1 with every Gaussian trained."""
-        if self.method == "static":
+        """The training stage (1, 2 or 3) of iteration ``step`` (0-based); only "ours" has stages:
+        the other methods stay in stage 1 with every part trained from the start."""
+        if self.method != "ours":
             return 1
         if step >= round(self.optim.stage3_start * self.optim.iterations):
             return 3

@@ -81,9 +81,53 @@ class FrameTargets:
     directions: Tensor
 
 
+BASELINE_MASK_DIR = "masks_baseline"
+
+
+def baseline_mask_dir(scene, prepared: Path, progress: bool = False) -> Path:
+    """``prepared/masks_baseline``: the non-learned radar flood-fill masks of every frame, computed
+    once (atomically, from the prepared radar and depth) and reused after."""
+    from radar4dgs.data.atomic import atomic_directory
+    from radar4dgs.segment.infer import SegInferConfig, prepare_masks
+
+    folder = Path(prepared) / BASELINE_MASK_DIR
+    if (folder / "summary.json").is_file():
+        return folder
+    with atomic_directory(folder, overwrite=True) as tmp:
+        wrap = None
+        if progress:
+            from tqdm import tqdm
+
+            def wrap(items):
+                return tqdm(items, total=len(scene), desc="baseline masks", unit="frame", leave=False)
+        prepare_masks(scene, prepared, SegInferConfig(method="baseline", save_prob=False), out_dir=tmp, progress=wrap)
+    return folder
+
+
+def dynamic_masks(scene, prepared: Path, source: str, indices, progress: bool = False) -> dict[int, np.ndarray]:
+    """The (H, W) bool dynamic mask of each frame in ``indices`` from ``source``: "predicted"
+    (``prepared/masks``), "baseline" (:func:`baseline_mask_dir`) or "gt" (``gt/dynamic_mask``)."""
+    prepared = Path(prepared)
+    shape = (scene.camera.height, scene.camera.width)
+    if source == "gt":
+        if not scene.has("gt/dynamic_mask"):
+            raise FileNotFoundError(f"{scene.root / 'gt' / 'dynamic_mask'}: the scene has no ground-truth "
+                                    f"masks for mask_source gt")
+        return {i: scene.load_optional("gt/dynamic_mask", i).astype(bool) for i in indices}
+    if source == "baseline":
+        folder = baseline_mask_dir(scene, prepared, progress)
+    elif source == "predicted":
+        folder = prepared / "masks"
+    else:
+        raise ValueError(f"unknown mask source {source!r}; choose predicted, baseline or gt")
+    return {i: read_mask_png(_require(folder / f"{scene.frames[i].name}.png", "dynamic mask"), shape)
+            for i in indices}
+
+
 def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: np.ndarray,
-                       device: torch.device, dtype: torch.dtype) -> FrameTargets:
-    """:class:`FrameTargets` of frame ``index`` from the scene and ``prepared``."""
+                       device: torch.device, dtype: torch.dtype, dynamic: np.ndarray | None = None) -> FrameTargets:
+    """:class:`FrameTargets` of frame ``index`` from the scene and ``prepared``; ``dynamic`` (H, W)
+    bool is its dynamic mask (default ``prepared/masks``)."""
     name = scene.frames[index].name
     H, W = scene.camera.height, scene.camera.width
     view = frame_view(scene, index, scale, times)
@@ -93,7 +137,8 @@ def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: n
     if depth.shape != (H, W):
         raise ValueError(f"{prepared / 'depth' / (name + '.npy')}: shape {depth.shape}, expected {(H, W)}")
     sky = read_mask_png(_require(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
-    dynamic = read_mask_png(_require(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
+    if dynamic is None:
+        dynamic = read_mask_png(_require(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
     depth, sky, dynamic = (resize_nearest(a, size) for a in (depth, sky, dynamic))
     kw = {"device": device}
     return FrameTargets(

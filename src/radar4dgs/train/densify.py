@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from radar4dgs.render.projection import _rotmat_components
 from radar4dgs.train.config import DensifyConfig
-from radar4dgs.train.gaussians import PARAM_NAMES, GaussianSet
+from radar4dgs.train.gaussians import MOTION_PARAM_NAMES, PARAM_NAMES, GaussianSet
 
 SPLIT_SCALE_DIVISOR = 1.6  # 3DGS: each of the two halves gets the scale / (0.8 * 2)
 
@@ -55,7 +55,7 @@ class GradientStats:
 def _group_name(group: dict) -> str:
     """The parameter name of an optimizer group made by :meth:`GaussianSet.param_groups`."""
     name = group["name"].rsplit(".", 1)[-1]
-    if name not in PARAM_NAMES:
+    if name not in PARAM_NAMES + MOTION_PARAM_NAMES:
         raise KeyError(f"optimizer group {group['name']!r} is not a Gaussian parameter")
     return name
 
@@ -65,7 +65,7 @@ def edit_rows(gaussians: GaussianSet, optimizer: torch.optim.Optimizer,
     """Replace every parameter ``p`` of ``gaussians`` by ``edit(name, p, False)`` and each of its
     Adam moments ``m`` by ``edit(name, m, True)`` (the flag says "moment": new rows must be 0)."""
     groups = {_group_name(g): g for g in optimizer.param_groups}
-    for name in PARAM_NAMES:
+    for name in gaussians.names:
         old = gaussians.params[name]
         new = nn.Parameter(edit(name, old.detach(), False))
         group = groups.get(name)
@@ -101,7 +101,7 @@ def split_samples(params: dict[str, Tensor], generator: torch.Generator) -> dict
     noise = torch.randn((2,) + tuple(scales.shape), generator=generator, dtype=scales.dtype).to(scales.device)
     rot = _rotmat_components(params["quats"]).permute(2, 0, 1)  # (M, 3, 3)
     offsets = torch.einsum("mij,kmj->kmi", rot, noise * scales[None])
-    children = {name: params[name].repeat(2, *([1] * (params[name].dim() - 1))) for name in PARAM_NAMES}
+    children = {name: value.repeat(2, *([1] * (value.dim() - 1))) for name, value in params.items()}
     children["means"] = (params["means"][None] + offsets).reshape(-1, 3)
     children["log_scales"] = children["log_scales"] - math.log(SPLIT_SCALE_DIVISOR)
     return children
@@ -119,7 +119,7 @@ def densify_and_prune(gaussians: GaussianSet, optimizer: torch.optim.Optimizer, 
     n = len(gaussians)
     if n == 0:
         return {"cloned": 0, "split": 0, "pruned": 0}
-    params = {name: gaussians.params[name].detach() for name in PARAM_NAMES}
+    params = {name: gaussians.params[name].detach() for name in gaussians.names}
     grow = stats.average().to(params["means"].device) > config.grad_threshold
     # Room left under the cap: the strongest gradients first.
     room = max(config.max_gaussians - n, 0)
@@ -130,10 +130,10 @@ def densify_and_prune(gaussians: GaussianSet, optimizer: torch.optim.Optimizer, 
     largest = torch.exp(params["log_scales"]).max(dim=-1).values
     clone = grow & (largest <= config.clone_max_scale * extent)
     split = grow & ~clone
-    new_rows = {name: params[name][clone] for name in PARAM_NAMES}
+    new_rows = {name: value[clone] for name, value in params.items()}
     if split.any():
-        children = split_samples({name: params[name][split] for name in PARAM_NAMES}, generator)
-        new_rows = {name: torch.cat([new_rows[name], children[name]], dim=0) for name in PARAM_NAMES}
+        children = split_samples({name: value[split] for name, value in params.items()}, generator)
+        new_rows = {name: torch.cat([new_rows[name], children[name]], dim=0) for name in params}
     # Split parents leave; transparent and huge Gaussians are pruned.
     opacity = torch.sigmoid(params["opacity_logits"])
     prune = opacity < config.prune_opacity

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, ClassVar, Literal, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -32,12 +32,19 @@ from radar4dgs.motion.fit import normalized_times
 from radar4dgs.motion.flow import backproject
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
+# Optional per-Gaussian motion parameters of the baselines (train.motion_models): ``velocity``
+# (N, 3), ``tau`` (N,) life peak, ``log_lifespan`` (N,), ``control`` (N, K, 3) B-spline offsets.
+MOTION_PARAM_NAMES: tuple[str, ...] = ("velocity", "tau", "log_lifespan", "control")
 
 
 @dataclass
 class GaussianInitConfig:
-    """How the Gaussians are initialised from the prepared depth."""
+    """How the Gaussians are initialised from the prepared depth (or the scene's LiDAR)."""
 
+    # "depth": back-project the radar-scaled monocular depth of every training frame (ours);
+    # "lidar": the scene's lidar/ points of the training frames (the paper's sensor ablation),
+    # coloured and split by projecting them into their frame's image and mask.
+    source: Literal["depth", "lidar"] = "depth"
     # Candidate pixels are taken on a grid with this step (1 = every pixel) before subsampling.
     pixel_stride: int = 2
     # At most this many points are kept per training frame (uniform random subset of the
@@ -95,12 +102,39 @@ def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
     return read_mask_png(path, shape)
 
 
+def lidar_frame(scene, index: int, config: GaussianInitConfig, dynamic: np.ndarray,
+                rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Frame ``index``'s LiDAR points (``lidar/``, ego frame) in the world, keeping those that
+    project into the image in front of the camera (only they get a colour), coloured by the pixel
+    they fall on and flagged dynamic by ``dynamic`` (H, W) bool; keys as :func:`backproject_frame`."""
+    H, W = scene.camera.height, scene.camera.width
+    ego = scene.load_optional("lidar", index)[:, :3].astype(np.float64)
+    world = ego @ scene.frames[index].ego_to_world[:3, :3].T + scene.frames[index].ego_to_world[:3, 3]
+    world_to_camera = scene.world_to_camera(index)
+    uv, z = scene.camera.project(world @ world_to_camera[:3, :3].T + world_to_camera[:3, 3])
+    u, v = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
+    keep = (z > 0.1) & (z <= config.max_depth) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    idx = np.nonzero(keep)[0]
+    if 0 < config.points_per_frame < len(idx):
+        idx = np.sort(rng.choice(idx, size=config.points_per_frame, replace=False))
+    u, v = u[idx], v[idx]
+    image = scene.load_image(index)
+    return {"points": world[idx], "colors": image[v, u].astype(np.float64) / 255.0,
+            "frame": np.full(len(idx), index, dtype=np.int64), "dynamic": dynamic[v, u],
+            "pixels": np.stack([u, v], axis=1).astype(np.int64)}
+
+
 def backproject_frame(scene, prepared_dir: Path | str, index: int, config: GaussianInitConfig,
-                      rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Back-project one frame; keys as :func:`backproject_frames` plus ``pixels`` (M, 2) (u, v) ints."""
+                      rng: np.random.Generator, dynamic: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Back-project one frame; keys as :func:`backproject_frames` plus ``pixels`` (M, 2) (u, v) ints.
+    ``dynamic`` (H, W) bool is the frame's dynamic mask (default: ``prepared/masks``)."""
     prepared = Path(prepared_dir)
     name = scene.frames[index].name
     H, W = scene.camera.height, scene.camera.width
+    if dynamic is None:
+        dynamic = _read_mask(prepared / "masks" / f"{name}.png", (H, W))
+    if config.source == "lidar":
+        return lidar_frame(scene, index, config, dynamic, rng)
     depth_path = prepared / "depth" / f"{name}.npy"
     if not depth_path.is_file():
         raise FileNotFoundError(f"{depth_path}: missing depth (run `radar4dgs prepare` first)")
@@ -121,7 +155,6 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
     points = backproject(np.stack([u, v], axis=1).astype(np.float64), depth[v, u], scene.camera.K,
                          scene.world_to_camera(index))
     image = scene.load_image(index)
-    dynamic = _read_mask(prepared / "masks" / f"{name}.png", (H, W))
     return {
         "points": points,
         "colors": image[v, u].astype(np.float64) / 255.0,
@@ -132,17 +165,24 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
 
 
 def backproject_frames(scene, prepared_dir: Path | str, config: GaussianInitConfig,
-                       frames: Sequence[int] | None = None) -> dict[str, np.ndarray]:
+                       frames: Sequence[int] | None = None,
+                       masks: Mapping[int, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Back-project the training frames' (or ``frames``') prepared metric depth into world points.
 
     Returns numpy arrays: ``points`` (M, 3) float64 world, ``colors`` (M, 3) float64 in [0, 1],
     ``frame`` (M,) int64 frame index, ``dynamic`` (M,) bool (predicted dynamic mask), ``pixels``
     (M, 2) int64 (u, v). Sky pixels (sky mask or non-finite depth) never appear. The subsampling is
-    deterministic given ``config.seed``; the per-type caps are applied afterwards.
+    deterministic given ``config.seed``; the per-type caps are applied afterwards. ``masks`` maps a
+    frame index to its (H, W) bool dynamic mask (default: each frame's ``prepared/masks``).
+    With ``config.source == "lidar"`` the points are the frames' LiDAR points instead.
     """
     frames = list(scene.train_indices if frames is None else frames)
     rng = np.random.default_rng(config.seed)
-    parts = [backproject_frame(scene, prepared_dir, i, config, rng) for i in frames]
+    if config.source == "lidar" and not scene.has("lidar"):
+        raise FileNotFoundError(f"{scene.root / 'lidar'}: the scene has no LiDAR to initialise from "
+                                f"(init.source lidar); use init.source depth")
+    parts = [backproject_frame(scene, prepared_dir, i, config, rng, None if masks is None else masks[i])
+             for i in frames]
     keys = ("points", "colors", "frame", "dynamic", "pixels")
     empty = {"points": np.zeros((0, 3)), "colors": np.zeros((0, 3)), "frame": np.zeros(0, np.int64),
              "dynamic": np.zeros(0, bool), "pixels": np.zeros((0, 2), np.int64)}
@@ -190,14 +230,34 @@ class GaussianSet(nn.Module):
         missing = [n for n in PARAM_NAMES if n not in params]
         if missing:
             raise KeyError(f"missing parameters {missing}; need {list(PARAM_NAMES)}")
+        unknown = [n for n in params if n not in PARAM_NAMES + MOTION_PARAM_NAMES]
+        if unknown:
+            raise KeyError(f"unknown parameters {unknown}; known: {list(PARAM_NAMES + MOTION_PARAM_NAMES)}")
         n = params["means"].shape[0]
         shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
-                  "colors": (n, 3)}
-        for name, shape in shapes.items():
-            if tuple(params[name].shape) != shape:
-                raise ValueError(f"{name} has shape {tuple(params[name].shape)}, expected {shape}")
+                  "colors": (n, 3), "velocity": (n, 3), "tau": (n,), "log_lifespan": (n,)}
+        for name in params:
+            shape = shapes.get(name)
+            actual = tuple(params[name].shape)
+            if (shape is not None and actual != shape) or (name == "control" and (len(actual) != 3 or actual[0] != n
+                                                                                  or actual[2] != 3)):
+                raise ValueError(f"{name} has shape {actual}, expected {shape or (n, 'K', 3)}")
         self.params = nn.ParameterDict({name: nn.Parameter(params[name].detach().clone())
-                                        for name in PARAM_NAMES})
+                                        for name in PARAM_NAMES + MOTION_PARAM_NAMES if name in params})
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The parameter names this set holds (appearance first, then any motion parameters)."""
+        return tuple(name for name in PARAM_NAMES + MOTION_PARAM_NAMES if name in self.params)
+
+    def has(self, name: str) -> bool:
+        return name in self.params
+
+    def with_motion(self, **motion: Tensor) -> "GaussianSet":
+        """A new set with the same Gaussians plus the given motion parameters (N rows each)."""
+        params = {name: self.params[name].detach() for name in self.names}
+        params.update({name: value.to(params["means"]) for name, value in motion.items()})
+        return GaussianSet(params)
 
     @classmethod
     def from_points(cls, points: Any, colors: Any, *, init_opacity: float = 0.1, knn_k: int = 3,
@@ -245,11 +305,11 @@ class GaussianSet(nn.Module):
     def param_groups(self, lrs: Mapping[str, float], prefix: str = "") -> list[dict]:
         """One optimizer group per parameter named in ``lrs`` (a name left out is not optimised):
         ``[{"params": [p], "lr": lr, "name": prefix + name}]``. Unknown names raise a KeyError."""
-        unknown = [n for n in lrs if n not in PARAM_NAMES]
+        unknown = [n for n in lrs if n not in PARAM_NAMES + MOTION_PARAM_NAMES]
         if unknown:
-            raise KeyError(f"unknown parameter(s) {unknown}; parameters are {list(PARAM_NAMES)}")
+            raise KeyError(f"unknown parameter(s) {unknown}; parameters are {list(PARAM_NAMES + MOTION_PARAM_NAMES)}")
         return [{"params": [self.params[name]], "lr": float(lrs[name]), "name": prefix + name}
-                for name in PARAM_NAMES if name in lrs]
+                for name in self.names if name in lrs]
 
 
 # --------------------------------------------------------------------------------------------

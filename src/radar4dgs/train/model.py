@@ -1,5 +1,7 @@
 """The reconstructed scene: static Gaussians, canonical dynamic Gaussians moved by the VGPT field,
 and a sky environment map; one render function shared by training, evaluation and rendering.
+The baselines (issue 10) use the same model: their motion is per-Gaussian parameters of a set
+(PVG, B-splines; :mod:`radar4dgs.train.motion_models`) or an offset MLP over every Gaussian.
 
 A render composites every Gaussian once with four feature channels ``(r, g, b, is_dynamic)`` and
 the expected depth, so the dynamic-mask render (for the object loss and the evaluation pictures)
@@ -20,6 +22,8 @@ from radar4dgs.config import from_dict, to_dict
 from radar4dgs.motion.field import DeformationField, FieldConfig
 from radar4dgs.render.api import RasterConfig, rasterize
 from radar4dgs.train.gaussians import GaussianSet
+from radar4dgs.train.motion_models import (BaselineConfig, OffsetField, bspline_means, pvg_means,
+                                           temporal_visibility)
 from radar4dgs.train.sky import SkyEnvironment, camera_ray_directions
 
 # The rasterizer's depth range: the synthetic and real scenes reach ~150 m; sky is left to the map.
@@ -60,37 +64,60 @@ def rasterizer_intrinsics(K: np.ndarray) -> np.ndarray:
 
 
 class SceneModel(nn.Module):
-    """Static Gaussians, dynamic Gaussians (canonical; None before stage 2 and for the "static"
-    method), the deformation field (None for "static") and the sky map."""
+    """Static Gaussians, dynamic Gaussians (canonical; None before stage 2 and for the methods with
+    no dynamic set), the deformation field (only "ours"), the sky map, and the baselines' pieces:
+    ``offsets`` (deformable) and ``baseline`` (their config: PVG's period)."""
 
     def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
-                 dynamic: GaussianSet | None = None):
+                 dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
+                 baseline: BaselineConfig | None = None):
         super().__init__()
         self.static = static
         self.sky = sky
         self.field = field
         self.dynamic = dynamic
+        self.offsets = offsets
+        self.baseline = baseline or BaselineConfig()
 
     @property
     def num_gaussians(self) -> int:
         return len(self.static) + (len(self.dynamic) if self.dynamic is not None else 0)
 
+    def set_at(self, name: str, time: float) -> dict[str, Tensor]:
+        """Activated Gaussians of set ``name`` ("static" or "dynamic") at normalised ``time``:
+        ``means`` (N, 3) moved by whatever moves this set (the VGPT field for the dynamic set,
+        its B-spline or PVG parameters, the offset MLP), ``opacities`` (N,) times the temporal
+        visibility where the set has a life span, and ``quats``, ``scales``, ``colors``."""
+        gaussians = getattr(self, name)
+        g = gaussians.activated()
+        p = gaussians.params
+        time = float(time)
+        if name == "dynamic" and self.field is not None:
+            g["means"] = self.field(g["means"], time)
+        if gaussians.has("control"):
+            g["means"] = bspline_means(g["means"], p["control"], time)
+        if gaussians.has("velocity"):
+            g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
+        if gaussians.has("log_lifespan"):
+            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)
+        if self.offsets is not None:
+            g["means"] = g["means"] + self.offsets(g["means"], time)
+        return g
+
     def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,
                      detach_static: bool = False) -> dict[str, Tensor]:
-        """Activated Gaussians of the scene at normalised ``time``: ``means`` (N, 3), ``quats``
-        (N, 4), ``scales`` (N, 3), ``opacities`` (N,), ``colors`` (N, 3), ``dynamic`` (N,) bool;
-        static ones first. Dynamic means are ``D_t(canonical)`` (differentiable in the field)."""
+        """Activated Gaussians of the scene at normalised ``time`` (:meth:`set_at` of each set):
+        ``means`` (N, 3), ``quats`` (N, 4), ``scales`` (N, 3), ``opacities`` (N,), ``colors``
+        (N, 3), ``dynamic`` (N,) bool; static ones first."""
         parts = []
         if include_static:
-            static = self.static.activated()
+            static = self.set_at("static", time)
             if detach_static:
                 static = {k: v.detach() for k, v in static.items()}
             static["dynamic"] = torch.zeros(len(self.static), dtype=torch.bool, device=static["means"].device)
             parts.append(static)
         if include_dynamic and self.dynamic is not None and len(self.dynamic) > 0:
-            dynamic = self.dynamic.activated()
-            if self.field is not None:
-                dynamic["means"] = self.field(dynamic["means"], float(time))
+            dynamic = self.set_at("dynamic", time)
             dynamic["dynamic"] = torch.ones(len(self.dynamic), dtype=torch.bool, device=dynamic["means"].device)
             parts.append(dynamic)
         if not parts:
@@ -146,6 +173,8 @@ class SceneModel(nn.Module):
             "field_config": None if self.field is None else to_dict(self.field.config),
             "field": None if self.field is None else {k: v.cpu() for k, v in self.field.state_dict().items()},
             "sky": self.sky.logits.detach().cpu(),
+            "offsets": None if self.offsets is None else {k: v.cpu() for k, v in self.offsets.state_dict().items()},
+            "baseline_config": to_dict(self.baseline),
         }
 
     @classmethod
@@ -163,7 +192,12 @@ class SceneModel(nn.Module):
         if payload.get("field") is not None:
             field = DeformationField(from_dict(FieldConfig, payload["field_config"])).to(device=device, dtype=dtype)
             field.load_state_dict({k: v.to(device=device, dtype=dtype) for k, v in payload["field"].items()})
-        return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")))
+        baseline = from_dict(BaselineConfig, payload.get("baseline_config") or {})
+        offsets = None
+        if payload.get("offsets") is not None:
+            offsets = OffsetField(baseline).to(device=device, dtype=dtype)
+            offsets.load_state_dict({k: v.to(device=device, dtype=dtype) for k, v in payload["offsets"].items()})
+        return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline)
 
 
 def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:

@@ -36,10 +36,12 @@ from radar4dgs.motion.field import DeformationField
 from radar4dgs.motion.fit import normalized_times, torch_threads
 from radar4dgs.motion.losses import flow_loss, radar_loss
 from radar4dgs.train.config import TrainConfig
-from radar4dgs.train.data import FrameTargets, MotionTargets, load_frame_targets, load_motion_targets
+from radar4dgs.train.data import (FrameTargets, MotionTargets, dynamic_masks, load_frame_targets,
+                                  load_motion_targets)
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
 from radar4dgs.train.gaussians import GaussianSet, backproject_frames, to_canonical
 from radar4dgs.train.model import SceneModel
+from radar4dgs.train.motion_models import OffsetField
 from radar4dgs.train.sky import SkyEnvironment
 
 RUN_FILE = "run.json"
@@ -160,6 +162,21 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
                             f"(resume with --resume after changing the config)")
 
 
+# Where a run computes, not what it computes: a run may resume with other values.
+RUNTIME_FIELDS = ("threads", "device")
+
+
+def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
+    """True when ``saved`` (a config or its dict) describes the same run as ``config``, apart from
+    :data:`RUNTIME_FIELDS`."""
+    a = dict(saved) if isinstance(saved, dict) else to_dict(saved)
+    b = to_dict(config)
+    for name in RUNTIME_FIELDS:
+        a.pop(name, None)
+        b.pop(name, None)
+    return a == b
+
+
 def psnr_of(rgb: Tensor, image: Tensor) -> float:
     mse = float(((rgb.detach().clamp(0, 1) - image) ** 2).mean())
     return 10 * math.log10(1.0 / max(mse, 1e-10))
@@ -216,13 +233,44 @@ class RunState:
 
 
 def gaussian_lrs(config: TrainConfig, extent: float, progress: float) -> dict[str, float]:
-    o = config.optim
+    """Learning rate of every Gaussian parameter (the motion ones are used only by sets that
+    have them); lengths scale with the scene extent."""
+    o, b = config.optim, config.baselines
     return {"means": exponential_lr(o.means_lr, o.means_lr_final, progress) * extent, "quats": o.quats_lr,
-            "log_scales": o.scales_lr, "opacity_logits": o.opacity_lr, "colors": o.colors_lr}
+            "log_scales": o.scales_lr, "opacity_logits": o.opacity_lr, "colors": o.colors_lr,
+            "velocity": b.velocity_lr * extent, "tau": b.time_lr, "log_lifespan": b.lifespan_lr,
+            "control": b.control_lr * extent}
 
 
 def make_optimizer(gaussians: GaussianSet, config: TrainConfig, extent: float, prefix: str) -> torch.optim.Adam:
     return torch.optim.Adam(gaussians.param_groups(gaussian_lrs(config, extent, 0.0), prefix=prefix), eps=1e-15)
+
+
+def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, config: TrainConfig,
+                   **motion: Tensor) -> GaussianSet:
+    """``gaussians`` plus a life peak at the time of the frame each was seen in and the initial
+    life span (PVG, bspline), and any other motion parameters."""
+    n = len(gaussians)
+    like = gaussians.params["means"]
+    tau = torch.as_tensor(np.asarray(frame_times, dtype=np.float64)).to(like)
+    log_lifespan = torch.full((n,), math.log(config.baselines.initial_lifespan)).to(like)
+    return gaussians.with_motion(tau=tau, log_lifespan=log_lifespan, **motion)
+
+
+def offset_field(config: TrainConfig, points: np.ndarray, device, dtype) -> OffsetField:
+    """A fresh (seeded) Deformable-GS offset MLP normalised to the points' bounding box."""
+    torch.manual_seed(config.seed)
+    if len(points):
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        centre, scale = (lo + hi) / 2.0, max(float((hi - lo).max()) / 2.0, 1.0)
+    else:
+        centre, scale = np.zeros(3), 1.0
+    return OffsetField(config.baselines, centre, scale).to(device=device, dtype=dtype)
+
+
+def decayed_network_lr(config: TrainConfig, start: float, progress: float) -> float:
+    """The field's (and the offset MLP's) learning rate at ``progress``."""
+    return start * config.optim.field_lr_final_ratio ** progress
 
 
 def set_learning_rates(state: RunState, config: TrainConfig, extent: float, step: int) -> None:
@@ -232,10 +280,10 @@ def set_learning_rates(state: RunState, config: TrainConfig, extent: float, step
         if name in state.optimizers:
             for group in state.optimizers[name].param_groups:
                 group["lr"] = lrs[group["name"].rsplit(".", 1)[-1]]
-    if "field" in state.optimizers:
-        lr = config.optim.field_lr * config.optim.field_lr_final_ratio ** progress
-        for group in state.optimizers["field"].param_groups:
-            group["lr"] = lr
+    for name, start in (("field", config.optim.field_lr), ("offsets", config.baselines.offset_lr)):
+        if name in state.optimizers:
+            for group in state.optimizers[name].param_groups:
+                group["lr"] = decayed_network_lr(config, start, progress)
 
 
 class Trainer:
@@ -260,6 +308,8 @@ class Trainer:
         self.times = normalized_times(self.scene)
         self.extent = scene_extent(self.scene)
         self.train_indices = self.scene.train_indices
+        self.masks = dynamic_masks(self.scene, self.prepared, self.config.mask_source, self.train_indices,
+                                   self.progress)
         self.targets = self._targets(self.config.resolution_scale)
         self.coarse_targets = self._targets(self.config.resolution_scale * self.config.coarse_scale) \
             if self.config.coarse_scale < 1.0 and self.config.coarse_until > 0 else self.targets
@@ -270,33 +320,49 @@ class Trainer:
         """The back-projected training frames (deterministic given the init seed), computed once:
         the static Gaussians start from them and, at stage 2, the dynamic ones."""
         if self._points is None:
-            self._points = backproject_frames(self.scene, self.prepared, self.config.init)
+            self._points = backproject_frames(self.scene, self.prepared, self.config.init, masks=self.masks)
         return self._points
 
     def _targets(self, scale: float) -> list[FrameTargets]:
-        return [load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype)
-                for i in self.train_indices]
+        return [load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype,
+                                   dynamic=self.masks[i]) for i in self.train_indices]
 
     def _fresh_state(self) -> RunState:
         config, device, dtype = self.config, self.device, self.dtype
+        method = config.method
         points = self._initial_points()
-        dyn = points["dynamic"] if config.method == "ours" else np.zeros(len(points["dynamic"]), bool)
+        # Only the methods that separate moving objects use the masks for the split.
+        dyn = points["dynamic"] if method in ("ours", "bspline") else np.zeros(len(points["dynamic"]), bool)
         static = GaussianSet.from_points(points["points"][~dyn], points["colors"][~dyn],
                                          **gaussian_kwargs(config, device, dtype))
+        if method == "pvg":
+            static = with_lifespans(static, self.times[points["frame"][~dyn]], config,
+                                    velocity=torch.zeros(len(static), 3))
         images = [(t.image.cpu().numpy() * 255).astype(np.uint8) for t in self.targets]
         sky = SkyEnvironment.from_sky_pixels(images, [t.sky.cpu().numpy() for t in self.targets],
                                              height=config.sky_height, width=config.sky_width,
                                              device=device, dtype=dtype)
-        deformation = None
+        deformation, dynamic, offsets = None, None, None
         optimizers: dict[str, torch.optim.Optimizer] = {
             "static": make_optimizer(static, config, self.extent, "static."),
             "sky": torch.optim.Adam(sky.parameters(), lr=config.optim.sky_lr),
         }
-        if config.method == "ours":
+        stats = {"static": GradientStats(len(static), device)}
+        if method == "ours":
             deformation = new_field(config, self.motion, points["points"][dyn], device, dtype)
             optimizers["field"] = torch.optim.Adam(deformation.parameters(), lr=config.optim.field_lr)
-        model = SceneModel(static, sky, deformation, None)
-        return RunState(0, model, optimizers, {"static": GradientStats(len(static), device)})
+        elif method == "deformable":
+            offsets = offset_field(config, points["points"], device, dtype)
+            optimizers["offsets"] = torch.optim.Adam(offsets.parameters(), lr=config.baselines.offset_lr)
+        elif method == "bspline":
+            dynamic = GaussianSet.from_points(points["points"][dyn], points["colors"][dyn],
+                                              **gaussian_kwargs(config, device, dtype))
+            control = torch.zeros(len(dynamic), config.baselines.control_points, 3)
+            dynamic = with_lifespans(dynamic, self.times[points["frame"][dyn]], config, control=control)
+            optimizers["dynamic"] = make_optimizer(dynamic, config, self.extent, "dynamic.")
+            stats["dynamic"] = GradientStats(len(dynamic), device)
+        model = SceneModel(static, sky, deformation, dynamic, offsets, config.baselines)
+        return RunState(0, model, optimizers, stats)
 
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
@@ -323,7 +389,7 @@ class Trainer:
 
     def load_checkpoint(self, path: Path) -> RunState:
         saved = torch.load(path, map_location="cpu", weights_only=True)
-        if to_dict(self.config) != saved.get("config"):
+        if not same_run_config(saved.get("config") or {}, self.config):
             raise TrainingError(f"{path}: saved with a different configuration than "
                                 f"{self.out / CONFIG_FILE}; resume with the run's own config")
         model = SceneModel.from_payload(saved["model"], self.device, self.dtype)
@@ -332,6 +398,8 @@ class Trainer:
         state.optimizers["sky"] = torch.optim.Adam(model.sky.parameters(), lr=self.config.optim.sky_lr)
         if model.field is not None:
             state.optimizers["field"] = torch.optim.Adam(model.field.parameters(), lr=self.config.optim.field_lr)
+        if model.offsets is not None:
+            state.optimizers["offsets"] = torch.optim.Adam(model.offsets.parameters(), lr=self.config.baselines.offset_lr)
         if model.dynamic is not None:
             state.optimizers["dynamic"] = make_optimizer(model.dynamic, self.config, self.extent, "dynamic.")
         for name, optimizer in state.optimizers.items():
@@ -358,7 +426,7 @@ class Trainer:
         last = self.out / CHECKPOINT_DIR / LAST_CHECKPOINT
         if resume and (self.out / CONFIG_FILE).is_file():
             saved_config = load_config(TrainConfig, self.out / CONFIG_FILE)
-            if to_dict(saved_config) != to_dict(self.config):
+            if not same_run_config(saved_config, self.config):
                 raise TrainingError(f"{self.out / CONFIG_FILE}: the run was started with another configuration; "
                                     "resume without changing options (or train into a new --out)")
         elif not resume and last.is_file():
@@ -417,15 +485,16 @@ class Trainer:
         target = targets[int(frame_order(config.seed, step // n, n)[step % n])]
         generator = step_generator(config.seed, step)
         model = state.model
+        ours = config.method == "ours"
+        with_dynamic = (ours and stage >= 2) or config.method == "bspline"
         keep, scale = None, 1.0
         if config.optim.dropout > 0 and step < config.optim.dropout_until * config.optim.iterations:
-            keep = torch.rand(model.num_gaussians if stage >= 2 else len(model.static),
+            keep = torch.rand(model.num_gaussians if with_dynamic else len(model.static),
                               generator=generator) >= config.optim.dropout
             keep = keep.to(self.device)
             scale = 1.0 / (1.0 - config.optim.dropout)
-        ours = config.method == "ours"
         render = model.render(target.view, config.raster, target.directions, keep, scale,
-                              include_dynamic=ours and stage >= 2, detach_static=ours and stage == 2)
+                              include_dynamic=with_dynamic, detach_static=ours and stage == 2)
         means2d = render["meta"]["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
@@ -438,8 +507,8 @@ class Trainer:
         for optimizer in state.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        trainable = ["sky", "field"] + (["static"] if not (ours and stage == 2) else []) + \
-            (["dynamic"] if ours and stage >= 2 else [])
+        trainable = ["sky", "field", "offsets"] + (["static"] if not (ours and stage == 2) else []) + \
+            (["dynamic"] if with_dynamic else [])
         for name in trainable:
             if name in state.optimizers:
                 state.optimizers[name].step()
