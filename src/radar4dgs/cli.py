@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit-motion": ("radar4dgs.motion.command", "FitMotionCommand"),
     "train": ("radar4dgs.train.command", "TrainCommand"),
     "eval": ("radar4dgs.evaluate.reconstruction", "EvalCommand"),
+    "bench": ("radar4dgs.evaluate.bench", "BenchCommand"),
     "render": ("radar4dgs.render.command", "RenderCommand"),
     "export": ("radar4dgs.export.command", "ExportCommand"),
     "view": ("radar4dgs.export.viewer", "ViewCommand"),
