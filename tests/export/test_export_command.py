@@ -103,3 +103,22 @@ def test_bad_inputs_give_clear_errors(trained, tmp_path, capsys):
         export_run(empty)
     assert main(["export", str(empty)]) == 1
     assert "model.pt: missing" in capsys.readouterr().err
+
+
+def test_a_pvg_run_exports_its_gaussians_where_and_as_visible_as_they_are_at_that_time(
+        tiny_trained_run, tmp_path, one_torch_thread):
+    from radar4dgs.train.trainer import train_run
+    from radar4dgs.train.variants import variant_config
+
+    scene = tiny_trained_run / "scene"
+    config = variant_config("tiny", "pvg", threads=1, optim={"iterations": 6},
+                            init={"points_per_frame": 300, "max_static": 1500})
+    state = train_run(scene, scene / "prepared", tmp_path / "pvg", config, progress=False)
+    for time in (0.2, 0.9):
+        path = export_run(tmp_path / "pvg", time=time, out=tmp_path / f"pvg_{time}.ply").path
+        data = read_gaussians_ply(path)
+        with torch.no_grad():
+            expected = state.model.set_at("static", time)
+        np.testing.assert_allclose(data["means"], expected["means"].numpy(), rtol=0, atol=1e-6)
+        opacity = 1.0 / (1.0 + np.exp(-data["opacity_logits"].astype(np.float64)))
+        np.testing.assert_allclose(opacity, expected["opacities"].numpy().clip(1e-6, 1 - 1e-6), rtol=1e-4, atol=1e-6)

@@ -58,23 +58,26 @@ def _check_options(fmt: str, part: str, time: float) -> float:
 def gaussians_for_export(model, part: str = "all", time: float = 0.0) -> dict[str, np.ndarray]:
     """The model's Gaussians in the PLY writer's parametrisation, static first: ``means`` (N, 3),
     ``quats`` (N, 4) unit wxyz, ``log_scales`` (N, 3), ``opacity_logits`` (N,), ``rgb`` (N, 3) in
-    [0, 1], plus ``n_static`` / ``n_dynamic`` (ints). Dynamic means are ``field(canonical, time)``
-    (canonical when the model has no field); everything else is the stored parameters."""
-    sets = [(model.static, False)]
+    [0, 1], plus ``n_static`` / ``n_dynamic`` (ints). Means are where the model puts them at
+    ``time`` (the field, or a baseline's motion; static ones are the stored parameters) and a
+    baseline's temporal visibility is folded into the opacity; the rest is the stored parameters."""
+    sets = ["static"]
     if part == "all" and model.dynamic is not None and len(model.dynamic) > 0:
-        sets.append((model.dynamic, True))
+        sets.append("dynamic")
     columns: dict[str, list[np.ndarray]] = {k: [] for k in ("means", "quats", "log_scales", "opacity_logits", "rgb")}
-    for gaussians, moved in sets:
-        active = gaussians.activated()
-        means = active["means"]
-        if moved and model.field is not None:
-            means = model.field(means, float(time))
+    for name in sets:
+        gaussians = getattr(model, name)
+        active = model.set_at(name, float(time))
         params = gaussians.params
+        opacity_logits = params["opacity_logits"]
+        if gaussians.has("log_lifespan"):
+            opacity = active["opacities"].clamp(1e-6, 1 - 1e-6)
+            opacity_logits = torch.log(opacity) - torch.log1p(-opacity)
         # float32 is what the file stores: converting here keeps the static means bit-identical.
-        columns["means"].append(means.float().cpu().numpy())
+        columns["means"].append(active["means"].float().cpu().numpy())
         columns["quats"].append(active["quats"].float().cpu().numpy())
         columns["log_scales"].append(params["log_scales"].float().cpu().numpy())
-        columns["opacity_logits"].append(params["opacity_logits"].float().cpu().numpy())
+        columns["opacity_logits"].append(opacity_logits.float().cpu().numpy())
         columns["rgb"].append(active["colors"].float().cpu().numpy())
     out: dict = {k: np.concatenate(v, axis=0) for k, v in columns.items()}
     out["n_static"] = len(model.static)
