@@ -152,3 +152,17 @@ def test_lidar_initialisation_lands_on_the_true_surfaces(tiny_trained_run):
         relative = np.abs(cam[ok, 2] - truth[ok]) / truth[ok]
         assert np.median(relative) < 0.02
         np.testing.assert_array_equal(points["dynamic"][mine], masks[i][v, u])
+
+
+def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
+    from radar4dgs.train.trainer import same_run_config
+
+    config = variant_config("tiny", "ours", threads=1)
+    saved = to_dict(config)
+    assert same_run_config(saved, apply_variant(preset(TrainConfig, "tiny", threads=2, device="cuda"), "ours"))
+    # A checkpoint written before the baselines existed lacks their fields: they count as defaults.
+    older = {k: v for k, v in saved.items() if k not in ("baselines", "mask_source")}
+    older["init"] = {k: v for k, v in saved["init"].items() if k != "source"}
+    assert same_run_config(older, config)
+    assert not same_run_config({**saved, "mask_source": "gt"}, config)
+    assert not same_run_config({**saved, "optim": {**saved["optim"], "iterations": 7}}, config)

@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from radar4dgs.config import load_config, save_config, to_dict
+from radar4dgs.config import from_dict, load_config, save_config, to_dict
 from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.data.scene import Scene, read_scene
 from radar4dgs.evaluate.image_metrics import ssim_loss_value
@@ -168,8 +168,9 @@ RUNTIME_FIELDS = ("threads", "device")
 
 def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
     """True when ``saved`` (a config or its dict) describes the same run as ``config``, apart from
-    :data:`RUNTIME_FIELDS`."""
-    a = dict(saved) if isinstance(saved, dict) else to_dict(saved)
+    :data:`RUNTIME_FIELDS`. A field that ``saved`` lacks (a run from before the field existed)
+    counts as its default."""
+    a = to_dict(from_dict(TrainConfig, saved, partial=False) if isinstance(saved, dict) else saved)
     b = to_dict(config)
     for name in RUNTIME_FIELDS:
         a.pop(name, None)
