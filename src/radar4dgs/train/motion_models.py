@@ -117,8 +117,8 @@ def fourier_features(x: Tensor, frequencies: int) -> Tensor:
 
 
 class OffsetField(nn.Module):
-    """``dx = MLP(gamma(normalise(x)), gamma(t))``: Deformable-GS's time-conditioned offsets of
-    every Gaussian. The last layer starts at zero, so an untrained field moves nothing."""
+    """``dx = MLP(gamma(normalise(x)), gamma(t))`` (metres): Deformable-GS's time-conditioned offsets
+    of every Gaussian. The last layer starts at zero, so an untrained field moves nothing."""
 
     def __init__(self, config: BaselineConfig, centre: np.ndarray | None = None, scale: float = 1.0):
         super().__init__()
@@ -135,7 +135,8 @@ class OffsetField(nn.Module):
         nn.init.zeros_(last.bias)
         self.mlp = nn.Sequential(*layers, last)
         # The scene's region maps to about [-1, 1]^3, so the Fourier frequencies mean the same in any
-        # scene; offsets come out in that unit and are scaled back.
+        # scene. Offsets come out in metres, as Deformable-GS's: scaling them by the region's size
+        # (~100 m with the far background) made every weight step move the near scene by metres.
         self.register_buffer("centre", torch.as_tensor(np.zeros(3) if centre is None else centre,
                                                        dtype=torch.float32).reshape(3))
         self.register_buffer("scale", torch.tensor(float(scale), dtype=torch.float32))
@@ -146,4 +147,4 @@ class OffsetField(nn.Module):
         t = torch.full((means.shape[0], 1), float(time), dtype=means.dtype, device=means.device)
         features = torch.cat([fourier_features(x, self.space_frequencies),
                               fourier_features(t, self.time_frequencies)], dim=-1)
-        return self.mlp(features) * self.scale
+        return self.mlp(features)
