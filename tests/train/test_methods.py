@@ -166,3 +166,16 @@ def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
     assert same_run_config(older, config)
     assert not same_run_config({**saved, "mask_source": "gt"}, config)
     assert not same_run_config({**saved, "optim": {**saved["optim"], "iterations": 7}}, config)
+
+
+@pytest.mark.parametrize("dynamic_stop, densified", [(0.0, False), (1.0, True)])
+def test_dynamic_gaussians_densify_only_in_their_own_window(tiny_trained_run, tmp_path, one_torch_thread,
+                                                             dynamic_stop, densified):
+    scene = tiny_trained_run / "scene"
+    config = small_config("ours", densify={"every": 2, "start": 0.0, "stop": 0.5, "grad_threshold": 1e-9,
+                                           "max_gaussians": 3500, "dynamic_stop": dynamic_stop})
+    state = train_run(scene, scene / "prepared", tmp_path / "run", config, progress=False)
+    rounds = [h for h in state.history if h.get("densify") == "dynamic"]
+    assert bool(rounds) == densified
+    assert all(6 <= h["step"] < 12 for h in rounds)  # stage 2 starts at 6 of 12
+    assert any(h.get("densify") == "static" for h in state.history)

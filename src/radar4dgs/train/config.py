@@ -91,6 +91,10 @@ class DensifyConfig:
     every: int = 100
     start: float = 0.05
     stop: float = 0.5
+    # The dynamic Gaussians keep densifying until this fraction of the run (when later than stop).
+    # "ours" creates them at stage 2, which starts where the static window ends (the paper's 15k of
+    # 30k), so with the default 0 they never densify.
+    dynamic_stop: float = 0.0
     # Grow Gaussians whose mean screen-space position gradient (NDC units, as 3DGS) exceeds this.
     grad_threshold: float = 2e-4
     # Clone when the largest scale is below this fraction of the scene extent, else split in two.

@@ -536,10 +536,11 @@ class Trainer:
                 state.stats[name].add(grad[lo:hi], visible[lo:hi], width, height)
         d = config.densify
         total = config.optim.iterations
-        if d.every <= 0 or not (d.start * total <= step < d.stop * total) or (step + 1) % d.every != 0:
+        if d.every <= 0 or (step + 1) % d.every != 0:
             return
         for name in ("static", "dynamic"):
-            if name not in trainable or name not in state.stats:
+            stop = max(d.stop, d.dynamic_stop) if name == "dynamic" else d.stop
+            if name not in trainable or name not in state.stats or not (d.start * total <= step < stop * total):
                 continue
             gaussians = getattr(state.model, name)
             counts = densify_and_prune(gaussians, state.optimizers[name], state.stats[name], self.extent, d, generator,
