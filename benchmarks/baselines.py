@@ -59,7 +59,7 @@ def main() -> int:
         shown = "missing" if check["holds"] is None else f"{a:.2f} vs {b:.2f} dB: {'holds' if check['holds'] else 'does NOT hold'}"
         print(f"{check['better']} > {check['worse']} (novel-view PSNR*): {shown}")
     seconds = [c["seconds"] for c in bench["cells"] if c.get("seconds") is not None]
-    atomic_write_json(RESULTS, {"command": "radar4dgs " + " ".join(command[4:]), "config": bench["config"],
+    atomic_write_json(RESULTS, {"command": "radar4dgs " + " ".join(command[3:]), "config": bench["config"],
                                 "means": bench["means"], "orderings": checks, "failed": bench["failed"],
                                 "cell_seconds_total": sum(seconds),
                                 "cells": [{k: c.get(k) for k in ("scene", "method", "status", "seconds", "metrics")}
