@@ -13,7 +13,7 @@ import json
 import types
 import typing
 from pathlib import Path
-from typing import Any, Literal, Mapping, TypeVar
+from typing import Any, Literal, Mapping, Sequence, TypeVar
 
 from radar4dgs.data.atomic import atomic_write_json
 
@@ -97,6 +97,22 @@ def from_dict(cls: type[T], values: Mapping[str, Any], partial: bool = True) -> 
         else:
             kwargs[name] = _coerce(annotation, value)
     return cls(**kwargs)
+
+
+def config_difference(saved: Mapping[str, Any], expected: Mapping[str, Any], ignore: Sequence[str] = (),
+                      prefix: str = "") -> list[str]:
+    """The dotted keys where two config dicts (:func:`radar4dgs.config.to_dict`) differ, as
+    ``"optim.iterations: 20 != 1800"`` (saved first); top-level keys in ``ignore`` are skipped."""
+    out = []
+    for key in sorted(set(saved) | set(expected)):
+        if not prefix and key in ignore:
+            continue
+        a, b = saved.get(key), expected.get(key)
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            out += config_difference(a, b, prefix=f"{prefix}{key}.")
+        elif a != b:
+            out.append(f"{prefix}{key}: {a!r} != {b!r}")
+    return out
 
 
 def save_config(config: Any, path: str | Path) -> Path:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
-from radar4dgs.config import PresetName, preset, to_dict
+from radar4dgs.config import PresetName, preset
 from radar4dgs.data.atomic import atomic_path, atomic_write_json, atomic_write_text
 from radar4dgs.train.variants import METHOD_NAMES, VARIANTS, MethodName, variant_config
 
@@ -222,22 +222,6 @@ def cell_summary(metrics: Mapping[str, Any]) -> dict[str, Any]:
             **{key: metrics.get(key) for key in ("method", "num_gaussians", "mask_source", "lpips_available")}}
 
 
-def config_difference(saved: Mapping[str, Any], expected: Mapping[str, Any], ignore: Sequence[str] = (),
-                      prefix: str = "") -> list[str]:
-    """The dotted keys where two config dicts (:func:`radar4dgs.config.to_dict`) differ, as
-    ``"optim.iterations: 20 != 1800"`` (saved first); top-level keys in ``ignore`` are skipped."""
-    out = []
-    for key in sorted(set(saved) | set(expected)):
-        if not prefix and key in ignore:
-            continue
-        a, b = saved.get(key), expected.get(key)
-        if isinstance(a, Mapping) and isinstance(b, Mapping):
-            out += config_difference(a, b, prefix=f"{prefix}{key}.")
-        elif a != b:
-            out.append(f"{prefix}{key}: {a!r} != {b!r}")
-    return out
-
-
 def run_cell(spec: CellSpec) -> dict[str, Any]:
     """Bring one cell to a metrics.json and return ``{"action", "metrics"}`` (:func:`cell_summary`).
 
@@ -249,8 +233,8 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     from radar4dgs.evaluate.reconstruction import evaluate_run
     from radar4dgs.motion.fit import torch_threads
     from radar4dgs.train.config import TrainConfig
-    from radar4dgs.train.trainer import (CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE, RUNTIME_FIELDS,
-                                         train_run)
+    from radar4dgs.train.trainer import (CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE,
+                                         run_config_difference, train_run)
 
     config = variant_config(spec.preset, spec.method, **spec.overrides)
     run = spec.run_dir
@@ -264,7 +248,7 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
         state = "trained"
     if state != "trained" and (run / CONFIG_FILE).is_file():
         saved = load_config(TrainConfig, run / CONFIG_FILE)
-        changed = config_difference(to_dict(saved), to_dict(config), ignore=RUNTIME_FIELDS)
+        changed = run_config_difference(saved, config)
         if changed:
             raise BenchError(f"{run}: trained with another configuration ({'; '.join(changed[:4])}); "
                              "delete the folder or bench into another --out")

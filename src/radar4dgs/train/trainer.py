@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from radar4dgs.config import from_dict, load_config, save_config, to_dict
+from radar4dgs.config import config_difference, from_dict, load_config, save_config, to_dict
 from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.data.scene import Scene, read_scene
 from radar4dgs.evaluate.image_metrics import ssim_loss_value
@@ -166,16 +166,17 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
 RUNTIME_FIELDS = ("threads", "device")
 
 
-def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
-    """True when ``saved`` (a config or its dict) describes the same run as ``config``, apart from
-    :data:`RUNTIME_FIELDS`. A field that ``saved`` lacks (a run from before the field existed)
-    counts as its default."""
+def run_config_difference(saved: TrainConfig | dict, config: TrainConfig) -> list[str]:
+    """Where ``saved`` (a config or its dict) and ``config`` describe different runs, as
+    :func:`radar4dgs.config.config_difference` lines, ignoring :data:`RUNTIME_FIELDS`. A field that
+    ``saved`` lacks (a run from before the field existed) counts as its default."""
     a = to_dict(from_dict(TrainConfig, saved, partial=False) if isinstance(saved, dict) else saved)
-    b = to_dict(config)
-    for name in RUNTIME_FIELDS:
-        a.pop(name, None)
-        b.pop(name, None)
-    return a == b
+    return config_difference(a, to_dict(config), ignore=RUNTIME_FIELDS)
+
+
+def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
+    """True when ``saved`` and ``config`` describe the same run (:func:`run_config_difference`)."""
+    return not run_config_difference(saved, config)
 
 
 def psnr_of(rgb: Tensor, image: Tensor) -> float:
