@@ -125,9 +125,9 @@ def dynamic_masks(scene, prepared: Path, source: str, indices, progress: bool = 
 
 
 def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: np.ndarray,
-                       device: torch.device, dtype: torch.dtype, dynamic: np.ndarray | None = None) -> FrameTargets:
+                       device: torch.device, dtype: torch.dtype, dynamic: np.ndarray) -> FrameTargets:
     """:class:`FrameTargets` of frame ``index`` from the scene and ``prepared``; ``dynamic`` (H, W)
-    bool is its dynamic mask (default ``prepared/masks``)."""
+    bool is its dynamic mask (from :func:`dynamic_masks`, read once per run)."""
     name = scene.frames[index].name
     H, W = scene.camera.height, scene.camera.width
     view = frame_view(scene, index, scale, times)
@@ -137,8 +137,6 @@ def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: n
     if depth.shape != (H, W):
         raise ValueError(f"{prepared / 'depth' / (name + '.npy')}: shape {depth.shape}, expected {(H, W)}")
     sky = read_mask_png(_require(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
-    if dynamic is None:
-        dynamic = read_mask_png(_require(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
     depth, sky, dynamic = (resize_nearest(a, size) for a in (depth, sky, dynamic))
     kw = {"device": device}
     return FrameTargets(
