@@ -57,13 +57,40 @@ def test_no_sky_points_and_every_ground_pixel_kept(prepared_scene):
         name = scene.frames[i].name
         sky = _mask(prepared / "depth" / "sky" / f"{name}.png")
         depth = np.load(prepared / "depth" / f"{name}.npy")
+        dynamic = _mask(prepared / "masks" / f"{name}.png")
         u, v = data["pixels"][data["frame"] == i].T
         assert not sky[v, u].any()
         assert np.isfinite(depth[v, u]).all()
-        # Completeness: every non-sky stride-2 pixel within max_depth is there.
+        # Completeness: every non-sky stride-2 pixel within max_depth is there, and every dynamic
+        # one (dynamic_pixel_stride 1).
         valid = ~sky & np.isfinite(depth) & (depth <= config.max_depth)
-        assert len(u) == int(valid[::2, ::2].sum())
+        grid = np.zeros_like(valid)
+        grid[::2, ::2] = True
+        assert len(u) == int((valid & (grid | dynamic)).sum())
         assert sky.any()  # the synthetic scene has sky, so the test above means something
+
+
+@pytest.mark.parametrize("dynamic_stride", [1, 2])
+def test_dynamic_pixels_are_taken_on_their_own_finer_grid(prepared_scene, dynamic_stride):
+    scene, prepared = prepared_scene
+    config = GaussianInitConfig(pixel_stride=4, dynamic_pixel_stride=dynamic_stride, points_per_frame=0)
+    i = scene.train_indices[0]
+    data = backproject_frame(scene, prepared, i, config, np.random.default_rng(0))
+    name = scene.frames[i].name
+    depth = np.load(prepared / "depth" / f"{name}.npy")
+    valid = ~_mask(prepared / "depth" / "sky" / f"{name}.png") & np.isfinite(depth) & (depth <= config.max_depth)
+    dynamic = _mask(prepared / "masks" / f"{name}.png") & valid
+    u, v = data["pixels"].T
+    on = np.zeros_like(valid)
+    on[v, u] = True
+    fine = np.zeros_like(valid)
+    fine[::dynamic_stride, ::dynamic_stride] = True
+    coarse = np.zeros_like(valid)
+    coarse[::4, ::4] = True
+    assert dynamic.sum() > 20
+    np.testing.assert_array_equal(on & dynamic, dynamic & (fine | coarse))
+    np.testing.assert_array_equal(on & ~dynamic, valid & ~dynamic & coarse)
+    assert data["dynamic"].sum() == int((dynamic & (fine | coarse)).sum())
 
 
 def test_dynamic_flag_matches_ground_truth_mask(prepared_scene):
