@@ -12,6 +12,7 @@ from radar4dgs.evaluate.reconstruction import load_run
 from radar4dgs.export import read_gaussians_ply
 from radar4dgs.export.command import default_export_path, export_run
 from radar4dgs.train.model import load_model
+from radar4dgs.train.motion_models import temporal_visibility
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -60,9 +61,17 @@ def test_all_part_moves_the_dynamic_gaussians_with_the_field(trained, model, tmp
     np.testing.assert_allclose(at_zero["means"][n_static:], expected_zero, rtol=0, atol=1e-6)
     # The time matters (the objects moved between t=0 and t=0.5) ...
     assert np.abs(at_half["means"][n_static:] - at_zero["means"][n_static:]).max() > 1e-3
-    # ... and only the positions move: rotations, scales, opacities and colours are the stored ones.
-    for key in ("quats", "log_scales", "opacity_logits", "rgb"):
+    # ... positions move, rotations, scales and colours are the stored ones ...
+    for key in ("quats", "log_scales", "rgb"):
         np.testing.assert_array_equal(at_half[key], at_zero[key])
+    # ... and a dynamic Gaussian's opacity is its stored one times its visibility at that time.
+    np.testing.assert_array_equal(at_half["opacity_logits"][:n_static], at_zero["opacity_logits"][:n_static])
+    with torch.no_grad():
+        stored = torch.sigmoid(model.dynamic.params["opacity_logits"])
+        for exported, time in ((at_half, 0.5), (at_zero, 0.0)):
+            visible = temporal_visibility(model.dynamic.params["tau"], model.dynamic.params["log_lifespan"], time)
+            np.testing.assert_allclose(1 / (1 + np.exp(-exported["opacity_logits"][n_static:])),
+                                       numpy(stored * visible), rtol=1e-4, atol=1e-6)
     quats = model.dynamic.params["quats"]
     np.testing.assert_allclose(at_half["quats"][n_static:], numpy(quats / quats.norm(dim=-1, keepdim=True)),
                                atol=1e-7)

@@ -46,6 +46,7 @@ def test_ablations_change_only_their_own_fields():
         "ours-no-dropout": {("optim", "dropout"): 0.0},
         "ours-no-depth": {("losses", "depth_weight"): 0.0},
         "ours-no-masks": {("losses", "object_weight"): 0.0, ("losses", "sky_weight"): 0.0},
+        "ours-no-lifespan": {("dynamic_lifespan",): 0.0},
         "ours-lidar-init": {("init", "source"): "lidar"},
         "ours-radar-masks": {("mask_source",): "baseline"}, "ours-gt-masks": {("mask_source",): "gt"},
     }

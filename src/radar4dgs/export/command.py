@@ -3,7 +3,8 @@
 ``--part static`` writes the static Gaussians only; ``--part all`` (default) adds the dynamic ones
 moved to normalised scene time ``--time T`` by the deformation field (``x_T = D_T(x_canonical)``).
 The field moves positions only: a dynamic Gaussian keeps its canonical rotation and scale at every
-time (it translates, it does not turn), so the exported rotations are the trained ones. Colours are
+time (it translates, it does not turn), so the exported rotations are the trained ones. A dynamic
+Gaussian with a life span (``dynamic_lifespan``) is exported with its opacity at time T. Colours are
 the view-independent ``sigmoid(colors)`` (degree-0 SH; the ``f_rest`` coefficients are zeros).
 
 Default output: ``RUN/export/scene_<part>_t<T>.ply`` (``T`` as ``%g``: ``t0``, ``t0.5``, ``t1``).
@@ -142,6 +143,6 @@ class ExportCommand:
             return 1
         what = (f"{result.n_static} static" if self.part == "static"
                 else f"{result.n_static} static + {result.n_dynamic} dynamic (moved to t={result.time:g}; "
-                     "rotations are the canonical ones, the field moves positions only)")
+                     "rotations are the canonical ones, the field moves positions only; opacities at that time)")
         print(f"wrote {result.n_static + result.n_dynamic} Gaussians: {what} -> {result.path}")
         return 0

@@ -118,6 +118,12 @@ class TrainConfig:
     method: Method = "ours"
     # Dynamic masks used for the static/dynamic split, the image losses and the object loss.
     mask_source: MaskSource = "predicted"
+    # Ours: initial life span (normalised time) of each dynamic Gaussian around the frame it was
+    # seen in, learned afterwards (PVG's temporal visibility); 0 = visible at every time, as the
+    # paper. The field carries one canonical copy of a car per training frame; with a life span
+    # each copy draws the car only near its own frame, so the field's error over long time gaps
+    # (a copy moved 40 frames away) blurs nothing.
+    dynamic_lifespan: float = 0.2
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).
@@ -175,6 +181,8 @@ class TrainConfig:
         if not 0.0 <= o.stage2_start <= o.stage3_start <= 1.0:
             raise ValueError("need 0 <= optim.stage2_start <= optim.stage3_start <= 1, got "
                              f"{o.stage2_start}, {o.stage3_start}")
+        if self.dynamic_lifespan < 0:
+            raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
         if not 0.0 <= o.dropout < 1.0:
             raise ValueError(f"optim.dropout must lie in [0, 1), got {o.dropout}")
         for name in ("resolution_scale", "coarse_scale"):

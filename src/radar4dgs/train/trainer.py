@@ -248,14 +248,15 @@ def make_optimizer(gaussians: GaussianSet, config: TrainConfig, extent: float, p
     return torch.optim.Adam(gaussians.param_groups(gaussian_lrs(config, extent, 0.0), prefix=prefix), eps=1e-15)
 
 
-def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, config: TrainConfig,
+def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float,
                    **motion: Tensor) -> GaussianSet:
     """``gaussians`` plus a life peak at the time of the frame each was seen in and the initial
-    life span (PVG, bspline), and any other motion parameters."""
+    life span ``lifespan`` (normalised time; PVG, bspline, ours' dynamic set), and any other
+    motion parameters."""
     n = len(gaussians)
     like = gaussians.params["means"]
     tau = torch.as_tensor(np.asarray(frame_times, dtype=np.float64)).to(like)
-    log_lifespan = torch.full((n,), math.log(config.baselines.initial_lifespan)).to(like)
+    log_lifespan = torch.full((n,), math.log(lifespan)).to(like)
     return gaussians.with_motion(tau=tau, log_lifespan=log_lifespan, **motion)
 
 
@@ -338,7 +339,7 @@ class Trainer:
         static = GaussianSet.from_points(points["points"][~dyn], points["colors"][~dyn],
                                          **gaussian_kwargs(config, device, dtype))
         if method == "pvg":
-            static = with_lifespans(static, self.times[points["frame"][~dyn]], config,
+            static = with_lifespans(static, self.times[points["frame"][~dyn]], config.baselines.initial_lifespan,
                                     velocity=torch.zeros(len(static), 3))
         images = [(t.image.cpu().numpy() * 255).astype(np.uint8) for t in self.targets]
         sky = SkyEnvironment.from_sky_pixels(images, [t.sky.cpu().numpy() for t in self.targets],
@@ -360,7 +361,8 @@ class Trainer:
             dynamic = GaussianSet.from_points(points["points"][dyn], points["colors"][dyn],
                                               **gaussian_kwargs(config, device, dtype))
             control = torch.zeros(len(dynamic), config.baselines.control_points, 3)
-            dynamic = with_lifespans(dynamic, self.times[points["frame"][dyn]], config, control=control)
+            dynamic = with_lifespans(dynamic, self.times[points["frame"][dyn]], config.baselines.initial_lifespan,
+                                     control=control)
             optimizers["dynamic"] = make_optimizer(dynamic, config, self.extent, "dynamic.")
             stats["dynamic"] = GradientStats(len(dynamic), device)
         model = SceneModel(static, sky, deformation, dynamic, offsets, config.baselines)
@@ -370,6 +372,9 @@ class Trainer:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
         points = self._initial_points()
         dynamic = dynamic_gaussians(points, self.times, state.model.field, self.config, self.device, self.dtype)
+        if self.config.dynamic_lifespan > 0:
+            dynamic = with_lifespans(dynamic, self.times[points["frame"][points["dynamic"]]],
+                                     self.config.dynamic_lifespan)
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)

@@ -15,7 +15,7 @@ from radar4dgs.config import PresetName, preset
 MethodName = Literal[
     "ours", "static", "deformable", "pvg", "bspline",
     "ours-no-radar", "ours-no-flow", "ours-field-only", "ours-no-dropout", "ours-no-depth",
-    "ours-no-masks", "ours-lidar-init", "ours-radar-masks", "ours-gt-masks",
+    "ours-no-masks", "ours-no-lifespan", "ours-lidar-init", "ours-radar-masks", "ours-gt-masks",
 ]
 METHOD_NAMES: tuple[str, ...] = get_args(MethodName)
 
@@ -35,6 +35,8 @@ VARIANTS: Mapping[str, tuple[str, Mapping[str, Any]]] = {
     "ours-no-depth": ("ours without the inverse-depth loss", {"losses": {"depth_weight": 0.0}}),
     "ours-no-masks": ("ours without the object and sky losses",
                       {"losses": {"object_weight": 0.0, "sky_weight": 0.0}}),
+    "ours-no-lifespan": ("ours with dynamic Gaussians visible at every time (the paper's)",
+                         {"dynamic_lifespan": 0.0}),
     "ours-lidar-init": ("ours initialised from LiDAR instead of radar-scaled depth",
                         {"init": {"source": "lidar"}}),
     "ours-radar-masks": ("ours with the non-learned radar baseline's masks", {"mask_source": "baseline"}),
