@@ -56,6 +56,8 @@ def test_stage_boundaries_follow_the_paper_fractions():
     assert config.optim.iterations == 30_000
     assert [config.stage_at(s) for s in (0, 14_999, 15_000, 19_999, 20_000, 29_999)] == [1, 1, 2, 2, 3, 3]
     assert preset(TrainConfig, "tiny", method="static").stage_at(10**6) == 1
+    small = preset(TrainConfig, "small")
+    assert [small.stage_at(s) for s in (449, 450, 719, 720)] == [1, 2, 2, 3]
 
 
 def test_bad_config_is_refused():
@@ -63,6 +65,8 @@ def test_bad_config_is_refused():
         preset(TrainConfig, "tiny", optim={"stage2_start": 0.8, "stage3_start": 0.5})
     with pytest.raises(ValueError, match="dropout"):
         preset(TrainConfig, "tiny", optim={"dropout": 1.0})
+    with pytest.raises(ValueError, match="dynamic_lifespan"):
+        preset(TrainConfig, "tiny", dynamic_lifespan=-0.1)
 
 
 def test_half_pixel_conventions():
@@ -180,6 +184,35 @@ def test_training_runs_all_stages_and_improves(prepared, tmp_path):
     assert any("densify" in h for h in state.history)
     model = load_model(tmp_path / "run" / "model.pt")
     assert model.num_gaussians == state.model.num_gaussians
+
+
+@pytest.mark.parametrize("lifespan", [0.2, 0.0])
+def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_path, lifespan):
+    scene, prep = prepared
+    trainer = Trainer(scene, prep, tmp_path / "run", tiny_config(dynamic_lifespan=lifespan), progress=False,
+                      log=lambda _: None)
+    trainer._load()
+    state = trainer._fresh_state()
+    trainer._start_dynamic(state)
+    points = trainer._initial_points()
+    frame_times = trainer.times[points["frame"][points["dynamic"]]]
+    dynamic = state.model.dynamic
+    assert len(dynamic) == len(frame_times) > 0
+    stored = dynamic.activated()["opacities"].detach()
+    t0 = float(frame_times[0])
+    with torch.no_grad():
+        at_own_time = state.model.set_at("dynamic", t0)["opacities"]
+        later = state.model.set_at("dynamic", t0 + 0.4)["opacities"]
+    same_frame = torch.as_tensor(frame_times == t0)
+    if lifespan == 0.0:
+        assert not dynamic.has("tau") and not dynamic.has("log_lifespan")
+        torch.testing.assert_close(later, stored)
+        return
+    np.testing.assert_allclose(dynamic.params["tau"].detach().numpy(), frame_times, rtol=0, atol=1e-6)
+    torch.testing.assert_close(dynamic.params["log_lifespan"].detach(), torch.full((len(dynamic),), math.log(lifespan)))
+    torch.testing.assert_close(at_own_time[same_frame], stored[same_frame])
+    # 0.4 = two life spans later: exp(-0.5 * 2^2) of the stored opacity.
+    torch.testing.assert_close(later[same_frame], stored[same_frame] * math.exp(-2.0))
 
 
 def test_resume_matches_an_unbroken_run(prepared, tmp_path):
