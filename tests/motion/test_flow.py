@@ -121,6 +121,25 @@ def test_reject_flow_outliers_per_component():
     assert not keep[0] and keep[1:].mean() > 0.97
 
 
+def test_two_touching_objects_keep_their_own_motion_with_local_medians():
+    # One mask component holding two objects side by side (a car beside another, touching in the
+    # image), 2 m apart in depth: 60 % move 1.5 m forward, 40 % 1.5 m forward and 0.5 m sideways.
+    mask = np.zeros((H, W), bool)
+    mask[10:30, 10:35] = True
+    rows, cols = np.nonzero(mask)
+    pixels = np.stack([cols, rows], 1).astype(np.float64)
+    second = cols >= 25
+    rng = np.random.default_rng(1)
+    points_i = np.stack([cols * 0.1, rows * 0.1, np.where(second, 22.0, 20.0)], 1)
+    flow = np.where(second[:, None], [0.5, 0.0, 1.5], [0.0, 0.0, 1.5]) + rng.normal(0, 0.01, (len(cols), 3))
+    flow[3] += [0.0, 0.0, 4.0]  # a gross outlier on the first object
+    points_j = points_i + flow
+    whole = reject_flow_outliers(points_i, points_j, pixels, mask)
+    local = reject_flow_outliers(points_i, points_j, pixels, mask, neighbours=16)
+    assert whole[second].mean() < 0.05  # against one median the second object is all "outliers"
+    assert local[second].mean() > 0.95 and local[~second].sum() == (~second).sum() - 1 and not local[3]
+
+
 @pytest.fixture(scope="module")
 def raft_checkpoint(tmp_path_factory):
     torch.manual_seed(0)

@@ -82,6 +82,12 @@ class FlowConfig:
     outlier_mad_factor: float = 3.0
     # Components with fewer lifted pairs than this cannot be checked and are dropped.
     outlier_min_points: int = 3
+    # Compare each pair with the median flow of its this many nearest pairs (3D, frame i, same
+    # component) instead of the whole component's; 0 = the component's median. Two cars that
+    # touch in the image form one component: against one median the slower car's pairs are all
+    # "outliers" and it loses its flow supervision (synthetic seed 1: a lane-changing car beside
+    # the lead car).
+    outlier_neighbours: int = 16
     # Where metric depth comes from: "prepared" = <prepared>/depth/<frame>.npy (stage 3);
     # "oracle" = the scene's gt/depth (ablations and tests only).
     depth_source: Literal["prepared", "oracle"] = "prepared"
@@ -392,16 +398,21 @@ def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.
 
 
 def reject_flow_outliers(points_i: np.ndarray, points_j: np.ndarray, pixels: np.ndarray, mask: np.ndarray,
-                         min_deviation: float = 0.1, mad_factor: float = 3.0, min_points: int = 3) -> np.ndarray:
-    """(M,) bool: lifted pairs consistent with the median 3D flow of their mask component.
+                         min_deviation: float = 0.1, mad_factor: float = 3.0, min_points: int = 3,
+                         neighbours: int = 0) -> np.ndarray:
+    """(M,) bool: lifted pairs consistent with the median 3D flow around them.
 
     Args:
         points_i, points_j: (M, 3) lifted pairs; pixels: (M, 2) their (u, v) in frame i;
         mask: (H, W) bool dynamic mask of frame i (its 8-connected components are the objects).
-    A pair is kept when |flow - median flow of its component| <= max(min_deviation,
-    mad_factor * 1.4826 * median absolute deviation) and its component has >= min_points pairs.
+        neighbours: 0 compares each pair with the median flow of its whole component; k > 0 with
+            the median of its k nearest pairs of the component (3D distance in frame i, itself
+            included), so two objects in one component keep their own motions.
+    A pair is kept when |flow - reference median| <= max(min_deviation, mad_factor * 1.4826 *
+    median absolute deviation over the component) and its component has >= min_points pairs.
     """
     import cv2
+    from scipy.spatial import cKDTree
 
     keep = np.zeros(len(points_i), dtype=bool)
     if len(points_i) == 0:
@@ -413,7 +424,12 @@ def reject_flow_outliers(points_i: np.ndarray, points_j: np.ndarray, pixels: np.
         members = np.nonzero(component == label)[0]
         if label == 0 or len(members) < min_points:  # 0: not on the mask (cannot happen for masked pixels)
             continue
-        deviation = np.linalg.norm(flow[members] - np.median(flow[members], axis=0), axis=1)
+        if neighbours > 0 and len(members) > neighbours:
+            _, nearest = cKDTree(points_i[members]).query(points_i[members], k=neighbours)
+            reference = np.median(flow[members][nearest], axis=1)
+        else:
+            reference = np.median(flow[members], axis=0)
+        deviation = np.linalg.norm(flow[members] - reference, axis=1)
         bound = max(min_deviation, mad_factor * 1.4826 * float(np.median(deviation)))
         keep[members] = deviation <= bound
     return keep
@@ -546,7 +562,8 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             mask_j if config.require_dynamic_target else None)
         if config.outlier_filter:
             keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
-                                        config.outlier_mad_factor, config.outlier_min_points)
+                                        config.outlier_mad_factor, config.outlier_min_points,
+                                        config.outlier_neighbours)
             points_i, points_j, pixels = points_i[keep], points_j[keep], pixels[keep]
         name = scene.frames[i].name
         atomic_write_bytes(out / f"{name}.npz", _npz_bytes(
