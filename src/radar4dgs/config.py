@@ -121,8 +121,9 @@ def save_config(config: Any, path: str | Path) -> Path:
     return atomic_write_json(path, payload)
 
 
-def load_config(cls: type[T], path: str | Path) -> T:
-    """Reload a config saved by :func:`save_config`; refuses a file saved from another class."""
+def read_config_dict(cls: type, path: str | Path) -> dict[str, Any]:
+    """The config dict saved by :func:`save_config` as written (fields added to ``cls`` since
+    are absent); refuses a file saved from another class."""
     path = Path(path)
     try:
         payload = json.loads(path.read_text(encoding="utf-8"))
@@ -131,4 +132,9 @@ def load_config(cls: type[T], path: str | Path) -> T:
     expected = f"{cls.__module__}.{cls.__qualname__}"
     if payload.get("class") != expected:
         raise ValueError(f"{path}: holds a {payload.get('class')!r} config, expected {expected!r}")
-    return from_dict(cls, payload["config"], partial=False)
+    return payload["config"]
+
+
+def load_config(cls: type[T], path: str | Path) -> T:
+    """Reload a config saved by :func:`save_config` (absent fields take their defaults)."""
+    return from_dict(cls, read_config_dict(cls, path), partial=False)

@@ -156,7 +156,7 @@ def test_lidar_initialisation_lands_on_the_true_surfaces(tiny_trained_run):
 
 
 def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
-    from radar4dgs.train.trainer import same_run_config
+    from radar4dgs.train.trainer import run_config_difference, same_run_config
 
     config = variant_config("tiny", "ours", threads=1)
     saved = to_dict(config)
@@ -165,6 +165,14 @@ def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
     older = {k: v for k, v in saved.items() if k not in ("baselines", "mask_source")}
     older["init"] = {k: v for k, v in saved["init"].items() if k != "source"}
     assert same_run_config(older, config)
+    # ... except where a run of that time did something else than the new default: a run saved
+    # before life spans and the dynamic pixel grid had neither.
+    before = {k: v for k, v in saved.items() if k != "dynamic_lifespan"}
+    before["init"] = {k: v for k, v in saved["init"].items() if k != "dynamic_pixel_stride"}
+    assert run_config_difference(before, config) == ["dynamic_lifespan: 0.0 != 0.2",
+                                                     "init.dynamic_pixel_stride: 2 != 1"]
+    assert same_run_config(before, variant_config("tiny", "ours", dynamic_lifespan=0.0,
+                                                  init={"dynamic_pixel_stride": 2}))
     assert not same_run_config({**saved, "mask_source": "gt"}, config)
     assert not same_run_config({**saved, "optim": {**saved["optim"], "iterations": 7}}, config)
 

@@ -229,7 +229,7 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     checkpoints/last.pt) or "trained". A run folder trained with another configuration than the
     bench's (other iterations, say) raises: its numbers would not belong in this table.
     """
-    from radar4dgs.config import load_config
+    from radar4dgs.config import read_config_dict
     from radar4dgs.evaluate.reconstruction import evaluate_run
     from radar4dgs.motion.fit import torch_threads
     from radar4dgs.train.config import TrainConfig
@@ -247,8 +247,7 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     else:
         state = "trained"
     if state != "trained" and (run / CONFIG_FILE).is_file():
-        saved = load_config(TrainConfig, run / CONFIG_FILE)
-        changed = run_config_difference(saved, config)
+        changed = run_config_difference(read_config_dict(TrainConfig, run / CONFIG_FILE), config)
         if changed:
             raise BenchError(f"{run}: trained with another configuration ({'; '.join(changed[:4])}); "
                              "delete the folder or bench into another --out")

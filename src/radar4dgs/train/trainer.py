@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from radar4dgs.config import config_difference, from_dict, load_config, save_config, to_dict
+from radar4dgs.config import config_difference, from_dict, read_config_dict, save_config, to_dict
 from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.data.scene import Scene, read_scene
 from radar4dgs.evaluate.image_metrics import ssim_loss_value
@@ -39,7 +39,7 @@ from radar4dgs.train.config import TrainConfig
 from radar4dgs.train.data import (FrameTargets, MotionTargets, dynamic_masks, load_frame_targets,
                                   load_motion_targets)
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
-from radar4dgs.train.gaussians import GaussianSet, backproject_frames, to_canonical
+from radar4dgs.train.gaussians import GaussianInitConfig, GaussianSet, backproject_frames, to_canonical
 from radar4dgs.train.model import SceneModel
 from radar4dgs.train.motion_models import OffsetField
 from radar4dgs.train.sky import SkyEnvironment
@@ -166,12 +166,26 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
 RUNTIME_FIELDS = ("threads", "device")
 
 
+def with_legacy_values(saved: dict) -> dict:
+    """A saved TrainConfig dict with the fields it predates set to what a run of its time did,
+    where that is not the field's default: no life span (``dynamic_lifespan`` 0) and dynamic
+    pixels on the background's grid (``init.dynamic_pixel_stride`` = ``init.pixel_stride``)."""
+    out = dict(saved)
+    out.setdefault("dynamic_lifespan", 0.0)
+    init = out.get("init")
+    if isinstance(init, dict) and "dynamic_pixel_stride" not in init:
+        out["init"] = {**init, "dynamic_pixel_stride": init.get("pixel_stride", GaussianInitConfig.pixel_stride)}
+    return out
+
+
 def run_config_difference(saved: TrainConfig | dict, config: TrainConfig) -> list[str]:
-    """Where ``saved`` (a config or its dict) and ``config`` describe different runs, as
+    """Where ``saved`` (a config, or its dict as saved) and ``config`` describe different runs, as
     :func:`radar4dgs.config.config_difference` lines, ignoring :data:`RUNTIME_FIELDS`. A field that
-    ``saved`` lacks (a run from before the field existed) counts as its default."""
-    a = to_dict(from_dict(TrainConfig, saved, partial=False) if isinstance(saved, dict) else saved)
-    return config_difference(a, to_dict(config), ignore=RUNTIME_FIELDS)
+    a saved dict lacks (a run from before the field existed) counts as what such a run did
+    (:func:`with_legacy_values`), else as its default."""
+    if isinstance(saved, dict):
+        saved = from_dict(TrainConfig, with_legacy_values(saved), partial=False)
+    return config_difference(to_dict(saved), to_dict(config), ignore=RUNTIME_FIELDS)
 
 
 def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
@@ -432,10 +446,11 @@ class Trainer:
     def _train(self, resume: bool, stop_after: int | None) -> RunState:
         last = self.out / CHECKPOINT_DIR / LAST_CHECKPOINT
         if resume and (self.out / CONFIG_FILE).is_file():
-            saved_config = load_config(TrainConfig, self.out / CONFIG_FILE)
-            if not same_run_config(saved_config, self.config):
-                raise TrainingError(f"{self.out / CONFIG_FILE}: the run was started with another configuration; "
-                                    "resume without changing options (or train into a new --out)")
+            changed = run_config_difference(read_config_dict(TrainConfig, self.out / CONFIG_FILE), self.config)
+            if changed:
+                raise TrainingError(f"{self.out / CONFIG_FILE}: the run was started with another configuration "
+                                    f"({'; '.join(changed[:4])}); resume with the run's options (or train into "
+                                    "a new --out)")
         elif not resume and last.is_file():
             raise TrainingError(f"{self.out}: holds a run already (checkpoint {last}); pass --resume to "
                                 "continue it or choose another --out")
