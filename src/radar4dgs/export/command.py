@@ -60,8 +60,9 @@ def gaussians_for_export(model, part: str = "all", time: float = 0.0) -> dict[st
     """The model's Gaussians in the PLY writer's parametrisation, static first: ``means`` (N, 3),
     ``quats`` (N, 4) unit wxyz, ``log_scales`` (N, 3), ``opacity_logits`` (N,), ``rgb`` (N, 3) in
     [0, 1], plus ``n_static`` / ``n_dynamic`` (ints). Means are where the model puts them at
-    ``time`` (the field, or a baseline's motion; static ones are the stored parameters) and a
-    baseline's temporal visibility is folded into the opacity; the rest is the stored parameters."""
+    ``time`` (the field, or a baseline's motion; static ones are the stored parameters) and a set's
+    temporal visibility (PVG, bspline, ours' life spans) is folded into the opacity; the rest is the
+    stored parameters."""
     sets = ["static"]
     if part == "all" and model.dynamic is not None and len(model.dynamic) > 0:
         sets.append("dynamic")

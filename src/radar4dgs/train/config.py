@@ -122,7 +122,8 @@ class TrainConfig:
     # seen in, learned afterwards (PVG's temporal visibility); 0 = visible at every time, as the
     # paper. The field carries one canonical copy of a car per training frame; with a life span
     # each copy draws the car only near its own frame, so the field's error over long time gaps
-    # (a copy moved 40 frames away) blurs nothing.
+    # (a copy moved 40 frames away) blurs nothing. Learning rates: baselines.time_lr (life
+    # peak) and baselines.lifespan_lr (log life span).
     dynamic_lifespan: float = 0.2
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
@@ -149,7 +150,7 @@ class TrainConfig:
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
     densify: DensifyConfig = dataclasses.field(default_factory=DensifyConfig)
     raster: RasterConfig = dataclasses.field(default_factory=RasterConfig)
-    # The baselines' motion models (deformable, pvg, bspline).
+    # The baselines' motion models (deformable, pvg, bspline), and the life-span learning rates.
     baselines: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
     # Sky map size (texels, equirectangular).
     sky_height: int = 64
@@ -162,7 +163,7 @@ class TrainConfig:
                  "optim": {"iterations": 200}, "checkpoint_every": 100, "log_every": 10,
                  "densify": {"every": 50, "max_gaussians": 12_000},
                  "losses": {"motion_batch": 512, "radar_points_per_frame": 500}},
-        # 320x180 on 2 CPU cores in about 10 minutes (the demo's budget is 20 in all): fewer
+        # 320x180 on 2 CPU cores in about 15 minutes (the demo's budget is 20 in all): fewer
         # iterations than a GPU run, the first third at half resolution. Stage 2 starts at a
         # quarter of the run, not half: 1 800 iterations leave the dynamic Gaussians too few
         # views otherwise, while the field's own fit (stage 1) needs only a few hundred

@@ -29,7 +29,9 @@ from torch import Tensor, nn
 
 @dataclass
 class BaselineConfig:
-    """Sizes and learning rates of the baselines' motion models (unused by ours and static)."""
+    """Sizes and learning rates of the baselines' motion models. The life-peak and life-span
+    learning rates (``time_lr``, ``lifespan_lr``) also train ours' dynamic life spans
+    (``TrainConfig.dynamic_lifespan``); nothing else here is used by ours or static."""
 
     # PVG: cycle length l as a fraction of the sequence (the paper compares with l = 0.2).
     pvg_period: float = 0.2
@@ -37,7 +39,8 @@ class BaselineConfig:
     # about +-2 beta around the frame that saw it.
     initial_lifespan: float = 0.2
     # PVG velocity (m per normalised time unit, scaled by the scene extent) and life-peak
-    # learning rates; the life span's is on log(beta).
+    # learning rates; the life span's is on log(beta). The last two serve every set with life
+    # spans: PVG, bspline and ours' dynamic Gaussians.
     velocity_lr: float = 1e-2
     time_lr: float = 1e-3
     lifespan_lr: float = 1e-2
