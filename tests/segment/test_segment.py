@@ -168,7 +168,7 @@ def test_segment_frame_shapes_and_anchor_count():
     model = RadarCameraSegNet(TINY).eval()
     image, _ = rectangle_image()
     uv = np.random.default_rng(0).uniform([20, 14], [44, 34], size=(12, 2))
-    result = segment_frame(model, image, radar_at_pixels(uv, 10.0, np.ones(12, bool)), SegInferConfig(num_anchors=8),
+    result = segment_frame(model, image, radar_at_pixels(uv, 10.0, np.ones(12, bool)), SegInferConfig(num_anchors=8, anchor_sampling="random"),
                            frame_rng(0, 0))
     assert result.prob.shape == (48, 64) and result.anchors.shape == (8, 2) and result.boxes.shape == (8, 4)
     assert 0 <= result.prob.min() and result.prob.max() <= 1
