@@ -10,6 +10,7 @@ from radar4dgs.config import load_config
 from radar4dgs.data.scene import read_scene
 from radar4dgs.prepare import PrepareConfig, run_prepare
 from radar4dgs.radar import RadarConfig, load_radar_outputs, prepare_radar
+from radar4dgs.radar.process import load_radar_dynamics_flags
 
 
 def test_prepare_radar_outputs(tmp_path):
@@ -42,6 +43,23 @@ def test_rows_align_with_load_radar_after_nan_drop(tmp_path):
         n = len(scene.load_radar(1))
     assert n == len(data) - 1
     assert load_radar_outputs(tmp_path / "radar", "000001")["dynamic"].shape == (n,)
+
+
+def test_dynamics_flags_reader_checks_the_file_against_the_scan(tmp_path):
+    scene = read_scene(write_tiny_scene(tmp_path / "scene", frames=3))
+    prepare_radar(scene, tmp_path / "radar")
+    n = len(scene.load_radar(1))
+    dynamic, comp = load_radar_dynamics_flags(tmp_path / "radar", "000001", n)
+    saved = load_radar_outputs(tmp_path / "radar", "000001")
+    assert np.array_equal(dynamic, saved["dynamic"]) and comp.dtype == np.float64
+    assert np.array_equal(comp, saved["v_r_comp"].astype(np.float64))
+    with pytest.raises(ValueError, match=rf"000001.npz: {n} rows, but the scan has {n + 1}"):
+        load_radar_dynamics_flags(tmp_path / "radar", "000001", n + 1)
+    np.savez(tmp_path / "radar" / "000002.npz", dynamic=saved["dynamic"])  # an older, partial file
+    with pytest.raises(ValueError, match=r"000002.npz: missing arrays \['v_r_comp'\]"):
+        load_radar_dynamics_flags(tmp_path / "radar", "000002", n)
+    with pytest.raises(FileNotFoundError, match="000009.npz: missing file"):
+        load_radar_dynamics_flags(tmp_path / "radar", "000009", n)
 
 
 def test_smoothing_options(tmp_path):

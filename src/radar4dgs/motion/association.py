@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.radar.classify import compensated_radial_velocity
+from radar4dgs.radar.process import load_radar_dynamics_flags
 
 
 @dataclass(frozen=True)
@@ -118,11 +119,7 @@ def prepared_radar_dynamics(scene, index: int, prepared_dir: str | Path) -> Rada
                                 f"`radar4dgs prepare`, first, or set radar_source='oracle' to use the "
                                 f"scene's gt/radar_labels)")
     scan = scene.load_radar(index)
-    with np.load(path, allow_pickle=False) as data:
-        dynamic = data["dynamic"].astype(bool)
-        comp = data["v_r_comp"].astype(np.float64)
-    if len(dynamic) != len(scan) or len(comp) != len(scan):
-        raise ValueError(f"{path}: {len(dynamic)} rows but the scan has {len(scan)}")
+    dynamic, comp = load_radar_dynamics_flags(path.parent, path.stem, len(scan))
     keep = dynamic & np.isfinite(comp)
     xyz = scan.xyz.astype(np.float64)[keep]
     return RadarDynamics(_to_world(scene, index, xyz), comp[keep], scene.radar_to_world(index)[:3, 3].copy())

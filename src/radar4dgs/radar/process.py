@@ -141,10 +141,27 @@ def compare_with_scene(scene, velocities: np.ndarray) -> dict:
             "max": _finite_or_none(float(err[good].max())) if good.any() else None}
 
 
-def load_radar_outputs(prepared_radar: str | Path, name: str) -> dict[str, np.ndarray]:
-    """The arrays of one frame's ``<name>.npz`` (keys ``NPZ_KEYS``)."""
+def load_radar_outputs(prepared_radar: str | Path, name: str, keys: tuple[str, ...] = NPZ_KEYS
+                       ) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` (default all, ``NPZ_KEYS``) of one frame's ``<name>.npz``."""
     path = Path(prepared_radar) / f"{name}.npz"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing file (run `radar4dgs prepare` first)")
     with np.load(path, allow_pickle=False) as data:
-        return {k: data[k] for k in NPZ_KEYS}
+        missing = [k for k in keys if k not in data.files]
+        if missing:
+            raise ValueError(f"{path}: missing arrays {missing} (written by an older or other tool; "
+                             f"rerun `radar4dgs prepare --only radar --force`)")
+        return {k: data[k] for k in keys}
+
+
+def load_radar_dynamics_flags(prepared_radar: str | Path, name: str, num_points: int
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's (N,) bool ``dynamic`` flags and (N,) float64 compensated radial velocity
+    ``v_r_comp`` (m/s) from ``<prepared_radar>/<name>.npz``, checked against the scan's N points."""
+    out = load_radar_outputs(prepared_radar, name, ("dynamic", "v_r_comp"))
+    dynamic, comp = out["dynamic"].astype(bool), out["v_r_comp"].astype(np.float64)
+    if len(dynamic) != num_points or len(comp) != num_points:
+        raise ValueError(f"{Path(prepared_radar) / f'{name}.npz'}: {len(dynamic)} rows, but the scan has "
+                         f"{num_points} points (rerun `radar4dgs prepare --only radar --force`)")
+    return dynamic, comp

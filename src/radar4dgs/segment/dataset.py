@@ -22,6 +22,7 @@ import numpy as np
 from radar4dgs.data.inspect import radar_points_in_camera
 from radar4dgs.data.scene import Scene, SceneWarning
 from radar4dgs.radar.classify import compensated_radial_velocity
+from radar4dgs.radar.process import load_radar_dynamics_flags
 from radar4dgs.segment.patches import RadarFrame, make_radar_frame
 
 DynamicSource = Literal["auto", "prepared", "estimate", "oracle"]
@@ -53,13 +54,9 @@ def dynamic_points(scene: Scene, index: int, xyz: np.ndarray, v_r: np.ndarray, s
     """(N,) dynamic flags and (N,) compensated radial velocity of frame ``index`` (module doc)."""
     npz = None if prepared_dir is None else Path(prepared_dir) / "radar" / f"{scene.frames[index].name}.npz"
     if source == "prepared" or (source == "auto" and npz is not None and npz.is_file()):
-        if npz is None or not npz.is_file():
-            raise FileNotFoundError(f"{npz}: missing radar front-end output (run `radar4dgs prepare` first)")
-        with np.load(npz, allow_pickle=False) as data:
-            dynamic, comp = data["dynamic"].astype(bool), data["v_r_comp"].astype(np.float64)
-        if len(dynamic) != len(xyz):
-            raise ValueError(f"{npz}: {len(dynamic)} rows, but the scan has {len(xyz)} points")
-        return dynamic, comp
+        if npz is None:
+            raise FileNotFoundError("dynamic source 'prepared' needs the prepared folder")
+        return load_radar_dynamics_flags(npz.parent, npz.stem, len(xyz))
     if source == "oracle":
         labels = scene.load_optional("gt/radar_labels", index)
         return labels == 1, compensated_radial_velocity(xyz, v_r, radar_velocity_from_poses(scene, index))
