@@ -94,6 +94,28 @@ def test_oracle_radar_dynamics_compensate_static_points(tiny_scene):
     assert dynamics.centre == pytest.approx(tiny_scene.radar_to_world(i)[:3, 3])
 
 
+def test_radar_returns_become_samples_with_their_own_doppler(tiny_scene):
+    from radar4dgs.motion.fit import FitConfig, collect_radar_samples, normalized_times
+
+    flow = FlowConfig(**ORACLE)
+    times = normalized_times(tiny_scene)
+    base, base_stats = collect_radar_samples(tiny_scene, None, flow,
+                                             FitConfig(radar_source="oracle", radar_returns_as_points=False), times)
+    more, stats = collect_radar_samples(tiny_scene, None, flow,
+                                        FitConfig(radar_source="oracle", radar_returns_as_points=True), times)
+    pairs = frame_pairs(tiny_scene, flow.skip_test_frames)
+    returns = [load_radar_dynamics(tiny_scene, i, "oracle") for i, _ in pairs]
+    assert stats["radar_returns_supervised"] == sum(len(r) for r in returns) > 0
+    assert base_stats["radar_returns_supervised"] == 0 and stats["radar_matched"] == base_stats["radar_matched"]
+    assert len(more) == len(base) + stats["radar_returns_supervised"]
+    # The returns of the first pair follow its lifted pixels, with their own Doppler and radar centre.
+    first = int(np.sum(more.t_i == times[pairs[0][0]])) - len(returns[0])
+    block = slice(first, first + len(returns[0]))
+    assert np.array_equal(more.x[block], returns[0].points)
+    assert np.array_equal(more.v_r[block], returns[0].v_r_comp)
+    assert np.allclose(more.centre[block], returns[0].centre)
+
+
 def test_fit_beats_a_field_that_does_not_move(tiny_scene, prepared):
     from radar4dgs.motion.fit import MotionConfig, load_field, run_fit, save_field
 

@@ -48,6 +48,10 @@ class LossConfig:
     radar_gate: float = 2.0
     # Dynamic pixels per frame lifted as radar-supervised points.
     radar_points_per_frame: int = 2000
+    # Also supervise the field at the dynamic radar returns themselves (see the standalone fit's
+    # FitConfig.radar_returns_as_points, on there). Off in training until measured there: the
+    # reconstruction numbers in the README were trained without it.
+    radar_returns_as_points: bool = False
 
 
 @dataclass
