@@ -7,8 +7,9 @@ were never used in training.
 Measures, per method (the network with the default anchors — up to 64 dynamic points spread by
 "cover" sampling, patches at 0.6 of the paper's size —, the network with the paper's anchors — 8
 random dynamic points, full-size patches —, the non-learned baseline): mask IoU accumulated over all
-frames of all scenes, the fraction of moving pixels left unmarked, the fraction of parked-car pixels marked dynamic, and seconds per frame (network part:
-anchors, patches, forward, paste-back; the radar front end is timed separately). Prints a table,
+frames of all scenes, the fraction of moving pixels left unmarked, the fraction of parked-car
+pixels marked dynamic, and seconds per frame (network part: anchors, patches, forward,
+paste-back; the radar front end is timed separately). Prints a table,
 writes ``benchmarks/results/segmentation.json`` and the figure ``docs/images/segmentation.png``
 (image with dynamic radar points and anchors, predicted mask, gt mask).
 """
