@@ -35,7 +35,7 @@ from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for
 from radar4dgs.segment.command import parse_seeds, synth_scenes
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.infer import DEFAULT_CARD, SegInferConfig, frame_rng, load_model, segment_frame
-from radar4dgs.segment.metrics import mask_scores
+from radar4dgs.segment.metrics import ground_truth_masks, mask_scores
 from radar4dgs.segment.patches import candidate_anchors
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -137,12 +137,13 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for path in paths:
         scene = read_scene(path)
+        truth = ground_truth_masks(scene, len(scene))  # once per scene, shared by every method
         scene_masks: dict[str, list] = {name: [] for name in masks}
         for i in range(len(scene)):
             start = time.perf_counter()
             radar = load_radar_frame(scene, i, args.dynamic_source, None)
             timing["radar_front_end"].append(time.perf_counter() - start)
-            image, gt = scene.load_image(i), scene.load_optional("gt/dynamic_mask", i)
+            image, gt = scene.load_image(i), truth[0][i]
             for name, config in configs.items():
                 start = time.perf_counter()
                 result = segment_frame(model, image, radar, config, frame_rng(config.seed, i))
@@ -155,14 +156,11 @@ def main(argv: list[str] | None = None) -> int:
                                                           scene.camera.K, BaselineConfig()))
             timing["baseline"].append(time.perf_counter() - start)
         for name, frames in scene_masks.items():
-            s = mask_scores(scene, frames)
-            gt_pixels = sum(int(scene.load_optional("gt/dynamic_mask", i).sum()) for i in range(len(scene)))
-            missed = gt_pixels - s["intersection"]
+            s = mask_scores(scene, frames, truth)
             scores[name]["per_scene"][scene.name] = {**{k: s[k] for k in ("mask_iou", "static_vehicle_fp")},
-                                                     "missed": missed / max(gt_pixels, 1)}
-            for key in ("intersection", "union", "parked_car_pixels"):
+                                                     "missed": 1.0 - s["intersection"] / max(s["gt_pixels"], 1)}
+            for key in ("intersection", "union", "gt_pixels", "parked_car_pixels"):
                 scores[name][key] = scores[name].get(key, 0) + (s[key] or 0)
-            scores[name]["gt_pixels"] = scores[name].get("gt_pixels", 0) + gt_pixels
             scores[name]["parked_marked"] = scores[name].get("parked_marked", 0) + round(
                 (s["static_vehicle_fp"] or 0) * (s["parked_car_pixels"] or 0))
         print(f"{scene.name}: " + ", ".join(f"{n} IoU {scores[n]['per_scene'][scene.name]['mask_iou']:.3f}"

@@ -357,6 +357,9 @@ def test_export_and_frontend_metrics(tmp_path):
     assert set(metrics) >= {"model", "baseline", "mask_iou", "static_vehicle_fp"}
     assert metrics["static_vehicle_fp"] is None  # no synthetic metadata in this scene
     assert 0 <= metrics["baseline"]["mask_iou"] <= 1 and 0 <= metrics["mask_iou"] <= 1
+    gt_pixels = sum(int(scene.load_optional("gt/dynamic_mask", i).sum()) for i in range(len(scene)))
+    assert metrics["model"]["gt_pixels"] == metrics["baseline"]["gt_pixels"] == gt_pixels == len(scene) * 24 * 20
+    assert metrics["model"]["intersection"] <= gt_pixels <= metrics["model"]["union"]
 
 
 def test_anchor_regions_keeps_only_the_anchor_object():

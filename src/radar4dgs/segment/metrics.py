@@ -87,14 +87,16 @@ def ground_truth_masks(scene: Scene, count: int) -> tuple[list[np.ndarray], list
 
 def mask_scores(scene: Scene, masks: list[np.ndarray],
                 truth: tuple[list[np.ndarray], list[np.ndarray | None]] | None = None) -> dict[str, Any]:
-    """``mask_iou``, ``static_vehicle_fp`` and pixel counts of per-frame (H, W) bool masks;
+    """``mask_iou``, ``static_vehicle_fp`` and pixel counts (``intersection``, ``union``,
+    ``gt_pixels``, ``parked_car_pixels``) of per-frame (H, W) bool masks;
     ``truth`` is :func:`ground_truth_masks` when the caller already has it."""
     gts, parked_cars = truth if truth is not None else ground_truth_masks(scene, len(masks))
-    inter = union = parked = parked_marked = 0
+    inter = union = gt_pixels = parked = parked_marked = 0
     has_parked = True
     for pred, gt, cars in zip(masks, gts, parked_cars):
         inter += int((pred & gt).sum())
         union += int((pred | gt).sum())
+        gt_pixels += int(gt.sum())
         if cars is None:
             has_parked = False
             continue
@@ -102,7 +104,8 @@ def mask_scores(scene: Scene, masks: list[np.ndarray],
         parked_marked += int((cars & pred).sum())
     return {"mask_iou": inter / union if union else None,
             "static_vehicle_fp": (parked_marked / parked if parked else 0.0) if has_parked else None,
-            "parked_car_pixels": parked if has_parked else None, "intersection": inter, "union": union}
+            "parked_car_pixels": parked if has_parked else None, "intersection": inter, "union": union,
+            "gt_pixels": gt_pixels}
 
 
 def segmentation_frontend_metrics(scene: Scene, prepared_dir: str | Path | None,
