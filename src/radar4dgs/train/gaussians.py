@@ -153,9 +153,8 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
         keep &= np.load(conf_path) >= config.min_confidence
     grid = np.zeros((H, W), dtype=bool)
     grid[::config.pixel_stride, ::config.pixel_stride] = True
-    fine = np.zeros((H, W), dtype=bool)
-    fine[::config.dynamic_pixel_stride, ::config.dynamic_pixel_stride] = True
-    grid |= fine & dynamic
+    step = config.dynamic_pixel_stride
+    grid[::step, ::step] |= dynamic[::step, ::step]
     v, u = np.nonzero(keep & grid)  # row-major order: deterministic
     if 0 < config.points_per_frame < len(u):
         chosen = np.sort(rng.choice(len(u), size=config.points_per_frame, replace=False))
