@@ -124,3 +124,21 @@ def test_camera_ray_directions(scene):
     # The synthetic camera looks forward and slightly down: its centre ray has a small negative z.
     centre = dirs.reshape(-1, 3).mean(axis=0)
     assert -0.3 < centre[2] < 0.0
+
+
+def test_map_gradient_does_not_depend_on_the_thread_count():
+    # A resumed run may use another thread count; repeated texels must sum in a fixed order.
+    g = torch.Generator().manual_seed(0)
+    directions = torch.nn.functional.normalize(torch.randn(20000, 3, generator=g), dim=-1)
+    weights = torch.randn(20000, 3, generator=g)
+    before = torch.get_num_threads()
+    grads = []
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            sky = SkyEnvironment(16, 32)
+            (sky(directions) * weights).sum().backward()
+            grads.append(sky.logits.grad)
+    finally:
+        torch.set_num_threads(before)
+    assert torch.equal(grads[0], grads[1])

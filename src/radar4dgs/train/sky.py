@@ -1,14 +1,13 @@
 """A learnable sky: an equirectangular environment map looked up by world ray direction.
 
-Pure torch (``grid_sample``), so it runs wherever the trainer runs; composited behind the Gaussians
-as ``rgb + (1 - alpha) * sky(direction)``.
+Pure torch (a bilinear lookup written as gathers), so it runs wherever the trainer runs;
+composited behind the Gaussians as ``rgb + (1 - alpha) * sky(direction)``.
 
 Map convention (world axes, z up as in the scene format's ego and world frames): longitude
 ``phi = atan2(d_y, d_x)`` in (-pi, pi], latitude ``lat = asin(d_z)`` in [-pi/2, pi/2]. Texel
 ``(row i, column j)`` of a (H, W) map is centred on ``phi_j = -pi + (j + 0.5) 2 pi / W`` and
 ``lat_i = pi/2 - (i + 0.5) pi / H`` (row 0 at the zenith). Lookup is bilinear in colour; longitude
-wraps (a copy of the last column is padded on the left and of the first on the right), latitude is
-clamped at the poles.
+wraps (the last column neighbours the first), latitude is clamped at the poles.
 """
 
 from __future__ import annotations
@@ -18,7 +17,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 
@@ -78,15 +76,25 @@ class SkyEnvironment(nn.Module):
         H, W = self.height, self.width
         phi = torch.atan2(d[:, 1], d[:, 0])
         lat = torch.asin(d[:, 2].clamp(-1.0, 1.0))
-        # Texel-index coordinates; x in the padded map (one extra column on each side).
-        px = (phi + math.pi) / (2 * math.pi) * W - 0.5 + 1.0
-        py = ((math.pi / 2 - lat) / math.pi * H - 0.5).clamp(0.0, H - 1.0)
-        grid = torch.stack([px / (W + 1) * 2 - 1, py / (H - 1) * 2 - 1], dim=-1)
-        colors = self.colors()
-        padded = torch.cat([colors[:, :, -1:], colors, colors[:, :, :1]], dim=2)
-        out = F.grid_sample(padded[None], grid[None, None], mode="bilinear", padding_mode="border",
-                            align_corners=True)  # (1, 3, 1, M)
-        return out[0, :, 0].T.reshape(*shape, 3)
+        # Texel-index coordinates (texel centres at integers). Written as four gathers rather
+        # than grid_sample over the whole map: a map fine enough for the sky's clouds has millions
+        # of texels, and a sigmoid and a padded copy of all of them every lookup cost more than the
+        # few texels a frame sees.
+        x = (phi + math.pi) / (2 * math.pi) * W - 0.5
+        y = ((math.pi / 2 - lat) / math.pi * H - 0.5).clamp(0.0, H - 1.0)
+        x0, y0 = torch.floor(x), torch.floor(y).clamp(max=H - 2)
+        fx, fy = x - x0, y - y0
+        c0 = torch.remainder(x0.long(), W)
+        c1 = torch.remainder(c0 + 1, W)
+        r0 = y0.long() * W
+        r1 = r0 + W
+        index = torch.stack([r0 + c0, r0 + c1, r1 + c0, r1 + c1])  # (4, M)
+        weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])  # (4, M)
+        # index_select: its backward (index_add) sums repeated texels in a fixed order, whatever the
+        # thread count, so a resumed run on other threads matches (advanced indexing does not).
+        texels = torch.sigmoid(self.logits.reshape(3, H * W).index_select(1, index.reshape(-1)))
+        texels = texels.reshape(3, 4, -1)  # (3, 4, M)
+        return (texels * weights).sum(dim=1).T.reshape(*shape, 3)
 
     def composite(self, rgb: Tensor, alpha: Tensor, directions: Tensor) -> Tensor:
         """``rgb + (1 - alpha) * sky(directions)``: rgb (H, W, 3) premultiplied by the Gaussians'
