@@ -169,7 +169,7 @@ def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
     # before life spans and the dynamic pixel grid had neither.
     before = {k: v for k, v in saved.items() if k != "dynamic_lifespan"}
     before["init"] = {k: v for k, v in saved["init"].items() if k != "dynamic_pixel_stride"}
-    assert run_config_difference(before, config) == ["dynamic_lifespan: 0.0 != 0.2",
+    assert run_config_difference(before, config) == ["dynamic_lifespan: 0.0 != 0.05",
                                                      "init.dynamic_pixel_stride: 2 != 1"]
     assert same_run_config(before, variant_config("tiny", "ours", dynamic_lifespan=0.0,
                                                   init={"dynamic_pixel_stride": 2}))
