@@ -113,13 +113,13 @@ def oracle_radar_dynamics(scene, index: int) -> RadarDynamics:
 
 def prepared_radar_dynamics(scene, index: int, prepared_dir: str | Path) -> RadarDynamics:
     """Dynamic radar points of frame ``index`` from ``<prepared>/radar/<frame>.npz`` (radar front end)."""
-    path = Path(prepared_dir) / "radar" / f"{scene.frames[index].name}.npz"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no prepared radar output (run the radar front end, "
-                                f"`radar4dgs prepare`, first, or set radar_source='oracle' to use the "
-                                f"scene's gt/radar_labels)")
     scan = scene.load_radar(index)
-    dynamic, comp = load_radar_dynamics_flags(path.parent, path.stem, len(scan))
+    try:
+        dynamic, comp = load_radar_dynamics_flags(Path(prepared_dir) / "radar", scene.frames[index].name,
+                                                  len(scan))
+    except FileNotFoundError as err:
+        raise FileNotFoundError(f"{err}; or set radar_source='oracle' to use the scene's "
+                                f"gt/radar_labels") from err
     keep = dynamic & np.isfinite(comp)
     xyz = scan.xyz.astype(np.float64)[keep]
     return RadarDynamics(_to_world(scene, index, xyz), comp[keep], scene.radar_to_world(index)[:3, 3].copy())
