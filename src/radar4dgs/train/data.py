@@ -21,14 +21,9 @@ from radar4dgs.motion.fit import (FitConfig, FlowSamples, RadarSamples, collect_
                                   flow_samples_from_pairs, normalized_times)
 from radar4dgs.motion.flow import FlowConfig, load_flow_pairs
 from radar4dgs.train.config import TrainConfig
+from radar4dgs.train.gaussians import require_prepared
 from radar4dgs.train.model import View, scale_intrinsics
 from radar4dgs.train.sky import camera_ray_directions
-
-
-def _require(path: Path, what: str) -> Path:
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing {what} (run `radar4dgs prepare` on the scene first)")
-    return path
 
 
 def resized_size(width: int, height: int, scale: float) -> tuple[int, int]:
@@ -120,7 +115,7 @@ def dynamic_masks(scene, prepared: Path, source: str, indices, progress: bool = 
         folder = prepared / "masks"
     else:
         raise ValueError(f"unknown mask source {source!r}; choose predicted, baseline or gt")
-    return {i: read_mask_png(_require(folder / f"{scene.frames[i].name}.png", "dynamic mask"), shape)
+    return {i: read_mask_png(require_prepared(folder / f"{scene.frames[i].name}.png", "dynamic mask"), shape)
             for i in indices}
 
 
@@ -133,10 +128,10 @@ def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: n
     view = frame_view(scene, index, scale, times)
     size = (view.width, view.height)
     image = resize_image(scene.load_image(index).astype(np.float32) / 255.0, size)
-    depth = np.load(_require(prepared / "depth" / f"{name}.npy", "depth")).astype(np.float32)
+    depth = np.load(require_prepared(prepared / "depth" / f"{name}.npy", "depth")).astype(np.float32)
     if depth.shape != (H, W):
         raise ValueError(f"{prepared / 'depth' / (name + '.npy')}: shape {depth.shape}, expected {(H, W)}")
-    sky = read_mask_png(_require(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
+    sky = read_mask_png(require_prepared(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
     depth, sky, dynamic = (resize_nearest(a, size) for a in (depth, sky, dynamic))
     kw = {"device": device}
     return FrameTargets(

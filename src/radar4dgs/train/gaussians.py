@@ -101,10 +101,11 @@ class GaussianInitConfig:
 # Back-projection
 
 
-def _read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
+def require_prepared(path: Path, what: str) -> Path:
+    """``path``, or a FileNotFoundError naming it and the command that makes it."""
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing mask (run `radar4dgs prepare` first)")
-    return read_mask_png(path, shape)
+        raise FileNotFoundError(f"{path}: missing {what} (run `radar4dgs prepare` on the scene first)")
+    return path
 
 
 def lidar_frame(scene, index: int, config: GaussianInitConfig, dynamic: np.ndarray,
@@ -137,17 +138,15 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
     name = scene.frames[index].name
     H, W = scene.camera.height, scene.camera.width
     if dynamic is None:
-        dynamic = _read_mask(prepared / "masks" / f"{name}.png", (H, W))
+        dynamic = read_mask_png(require_prepared(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
     if config.source == "lidar":
         return lidar_frame(scene, index, config, dynamic, rng)
-    depth_path = prepared / "depth" / f"{name}.npy"
-    if not depth_path.is_file():
-        raise FileNotFoundError(f"{depth_path}: missing depth (run `radar4dgs prepare` first)")
+    depth_path = require_prepared(prepared / "depth" / f"{name}.npy", "depth")
     depth = np.load(depth_path).astype(np.float64)
     if depth.shape != (H, W):
         raise ValueError(f"{depth_path}: depth has shape {depth.shape}, expected {(H, W)}")
     keep = np.isfinite(depth) & (depth > 0) & (depth <= config.max_depth)
-    keep &= ~_read_mask(prepared / "depth" / "sky" / f"{name}.png", (H, W))
+    keep &= ~read_mask_png(require_prepared(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
     if config.min_confidence > 0:
         conf_path = prepared / "depth" / f"{name}_confidence.npy"
         keep &= np.load(conf_path) >= config.min_confidence
