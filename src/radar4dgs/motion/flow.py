@@ -22,8 +22,8 @@ images never supervise the field), with keys
 
 Each dynamic-mask component whose single 2D translation explains the two images better than the
 dense flow gets that translation in ``flow`` (both directions, before the consistency check; see
-``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & valid depth in both frames. ``flow/config.json`` holds the
-resolved :class:`FlowConfig`.
+``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & valid depth in both frames.
+``flow/config.json`` holds the resolved :class:`FlowConfig`.
 """
 
 from __future__ import annotations
@@ -93,10 +93,10 @@ class FlowConfig:
     # Per connected component of the dynamic mask (one object), also try a single 2D translation
     # for the whole object and use it for the component's pixels when it explains the image
     # better (mean absolute grey-level error below rigid_accept x the dense flow's). A small,
-    # uniformly coloured object crossing the view (a bus 60-80 m away, 12 px tall) has texture
-    # only at its ends: dense flow meets the aperture problem inside it and its smoothing pulls the
-    # interior towards the background's flow (DIS "medium" gave 2.2 of 5.0 px, forward and
-    # backward agreeing, so the consistency check kept it). Synthetic seed 1, adjacent pairs,
+    # uniformly coloured object crossing the view (a bus 45-95 m away) has texture only at its
+    # ends: dense flow meets the aperture problem inside it and its smoothing pulls the interior
+    # towards the background's flow (DIS "medium" gave 2.2 of 5.0 px, forward and backward
+    # agreeing, so the consistency check kept it). Synthetic seed 1, adjacent pairs,
     # dynamic pixels beyond 40 m: EPE 2.47 -> 0.82 px; all dynamic pixels 0.51 -> 0.23 px.
     rigid_objects: bool = True
     # Integer search radius (px) of the translation around the component's median dense flow; a
