@@ -2,10 +2,12 @@
 seeds with every method, then the paper's orderings checked on novel-view PSNR*.
 
     python benchmarks/baselines.py [--work /tmp/radar4dgs-baselines] [--jobs 2]
+                                   [--methods M ...] [--out JSON] [--picture PNG]
 
 Runs exactly the README's command (resumable: finished cells are reused), prints the table and
 the orderings, and writes benchmarks/results/baselines.json (the bench's means and cells plus the
-orderings) and docs/images/ablation.png.
+orderings) and docs/images/ablation.png. --methods runs a subset (the bench's own option; default
+every method), written to --out and --picture instead when given.
 """
 
 from __future__ import annotations
@@ -45,9 +47,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-baselines"))
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--methods", nargs="+", default=None, help="a subset of the bench's methods")
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--picture", type=Path, default=PICTURE)
     args = parser.parse_args()
     command = [sys.executable, "-m", "radar4dgs.cli", "bench", "--synth-seeds", "1", "2", "3",
-               "--out", str(args.work), "--jobs", str(args.jobs), *SETTINGS]
+               "--out", str(args.work), "--jobs", str(args.jobs), *SETTINGS,
+               *(["--methods", *args.methods] if args.methods else [])]
     print(" ".join(command[2:]), flush=True)
     status = subprocess.run(command).returncode
     bench = json.loads((args.work / "bench.json").read_text())
@@ -59,14 +65,14 @@ def main() -> int:
         shown = "missing" if check["holds"] is None else f"{a:.2f} vs {b:.2f} dB: {'holds' if check['holds'] else 'does NOT hold'}"
         print(f"{check['better']} > {check['worse']} (novel-view PSNR*): {shown}")
     seconds = [c["seconds"] for c in bench["cells"] if c.get("seconds") is not None]
-    atomic_write_json(RESULTS, {"command": "radar4dgs " + " ".join(command[3:]), "config": bench["config"],
+    atomic_write_json(args.out, {"command": "radar4dgs " + " ".join(command[3:]), "config": bench["config"],
                                 "means": bench["means"], "orderings": checks, "failed": bench["failed"],
                                 "cell_seconds_total": sum(seconds),
                                 "cells": [{k: c.get(k) for k in ("scene", "method", "status", "seconds", "metrics")}
                                           for c in bench["cells"]]})
     if (args.work / "ablation.png").is_file():
-        shutil.copyfile(args.work / "ablation.png", PICTURE)
-    print(f"written: {RESULTS}, {PICTURE}")
+        shutil.copyfile(args.work / "ablation.png", args.picture)
+    print(f"written: {args.out}, {args.picture}")
     return status
 
 
