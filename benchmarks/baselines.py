@@ -19,7 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from radar4dgs.data.atomic import atomic_write_json
+from radar4dgs.io.atomic import atomic_write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "baselines.json"

@@ -41,8 +41,8 @@ TARGETS = {"affine_absrel_max": 0.08, "paper_scale_error_median_max": 0.02, "sca
 def load_or_make_scene(folder: Path, preset_name: str, seed: int):
     """The synthetic scene of ``seed``, generated into ``folder`` when absent (cached)."""
     from radar4dgs.config import preset
-    from radar4dgs.data.scene import read_scene
-    from radar4dgs.data.synth import SynthConfig, synthesize
+    from radar4dgs.io.scene import read_scene
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
 
     if not (folder / "scene.json").is_file():
         try:
@@ -106,7 +106,7 @@ def figure(scene, masks, config, frame: int, path: Path) -> None:
     """Rows affine / paper of radar pairs, metric depth and error for one frame."""
     from PIL import Image
 
-    from radar4dgs.data.atomic import atomic_write_bytes
+    from radar4dgs.io.atomic import atomic_write_bytes
     from radar4dgs.depth import recover_scale
     from radar4dgs.depth.geometry import transform_points
     from radar4dgs.depth.pipeline import render_frame, sky_prior
@@ -194,7 +194,7 @@ def main(argv=None) -> int:
 
     import torch
 
-    from radar4dgs.data.atomic import atomic_write_json
+    from radar4dgs.io.atomic import atomic_write_json
 
     seeds = [run_seed(seed, args) for seed in args.seeds]
 

@@ -21,10 +21,10 @@ import numpy as np
 import torch
 
 from radar4dgs.config import preset
-from radar4dgs.data.atomic import atomic_write_json
-from radar4dgs.data.scene import read_scene
-from radar4dgs.motion.field import DeformationField, FieldConfig, randomize_
-from radar4dgs.motion.fit import MotionConfig, run_fit
+from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.scene import read_scene
+from radar4dgs.model.field import DeformationField, FieldConfig, randomize_
+from radar4dgs.train.fit_motion import MotionConfig, run_fit
 from radar4dgs.motion.flow import motion_frontend_metrics, prepare_flow, time_dis
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
@@ -56,8 +56,8 @@ def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
 def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool) -> tuple[Path, Path, dict]:
     """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
     the radar stage runs and depth and masks come from the scene's gt/ (an upper bound)."""
-    from radar4dgs.data.synth import SynthConfig, synthesize
-    from radar4dgs.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 
     scene_dir = work / f"{preset_name}-s{seed}"
     if not (scene_dir / "scene.json").is_file():

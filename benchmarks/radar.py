@@ -31,10 +31,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from radar4dgs.config import preset, to_dict  # noqa: E402
-from radar4dgs.data.atomic import atomic_write_json  # noqa: E402
-from radar4dgs.data.scene import SceneWarning, read_scene  # noqa: E402
+from radar4dgs.io.atomic import atomic_write_json  # noqa: E402
+from radar4dgs.io.scene import SceneWarning, read_scene  # noqa: E402
 from radar4dgs.evaluate.frontend import evaluate_radar  # noqa: E402
-from radar4dgs.prepare import PrepareConfig, run_prepare  # noqa: E402
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare  # noqa: E402
 from radar4dgs.radar import RadarConfig, classify_dynamic, estimate_ego_motion, expected_radar_velocity  # noqa: E402
 from radar4dgs.radar.process import load_radar_outputs  # noqa: E402
 
@@ -69,7 +69,7 @@ def timing(repeats: int = 200) -> dict:
 
 
 def synth_scene(work: Path, seed: int, variant: str) -> Path:
-    from radar4dgs.data.synth import SynthConfig, synthesize
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
 
     out = work / f"s{seed}-{variant}"
     if (out / "scene.json").is_file():
@@ -196,7 +196,7 @@ def synthetic_truck(root: Path, config: RadarConfig, seed: int) -> dict:
 
 
 def aimotive(work: Path, src: Path) -> dict:
-    from radar4dgs.data.convert.aimotive import aimotive_radar_config, convert_aimotive
+    from radar4dgs.datasets.convert.aimotive import aimotive_radar_config, convert_aimotive
 
     root = work / "aimotive"
     if not (root / "scene.json").is_file():

@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 from radar4dgs.config import preset
-from radar4dgs.data.atomic import atomic_write_json
+from radar4dgs.io.atomic import atomic_write_json
 
 RESULTS = Path(__file__).parent / "results" / "reconstruct.json"
 FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotive-night"
@@ -37,8 +37,8 @@ FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotiv
 
 def prepare_scene(seed: int, preset_name: str, work: Path) -> tuple[Path, Path, float]:
     """The demo's layout: work/seed<N>/{scene, prepared}."""
-    from radar4dgs.data.synth import SynthConfig, synthesize
-    from radar4dgs.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
@@ -67,7 +67,7 @@ def run_dir(work: Path, seed: int, method: str) -> Path:
 
 def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, method: str) -> dict:
     from radar4dgs.evaluate.reconstruction import evaluate_run
-    from radar4dgs.train.config import TrainConfig
+    from radar4dgs.model.config import TrainConfig
     from radar4dgs.train.trainer import train_run
 
     seconds = None
@@ -94,7 +94,7 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
     run = work / f"seed{seed}" / "run-killed"
     if not (run / "model.pt").is_file():
         code = ("import sys; from pathlib import Path; from radar4dgs.config import preset; "
-                "from radar4dgs.train.config import TrainConfig; from radar4dgs.train.trainer import train_run; "
+                "from radar4dgs.model.config import TrainConfig; from radar4dgs.train.trainer import train_run; "
                 f"train_run(Path({str(scene)!r}), Path({str(prepared)!r}), Path({str(run)!r}), "
                 f"preset(TrainConfig, {preset_name!r}), progress=False)")
         child = subprocess.Popen([sys.executable, "-c", code])
@@ -120,8 +120,8 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
 
 
 def aimotive(work: Path, preset_name: str) -> dict:
-    from radar4dgs.data.convert.aimotive import convert_aimotive
-    from radar4dgs.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.convert.aimotive import convert_aimotive
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 
     scene = work / "aimotive" / "scene"
     started = time.perf_counter()

@@ -29,10 +29,10 @@ import cv2
 import numpy as np
 import torch
 
-from radar4dgs.data.atomic import atomic_write_json
-from radar4dgs.data.scene import SceneWarning, read_scene
+from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.scene import SceneWarning, read_scene
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
-from radar4dgs.segment.command import parse_seeds, synth_scenes
+from radar4dgs.apps.seg_train import parse_seeds, synth_scenes
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.infer import DEFAULT_CARD, SegInferConfig, frame_rng, load_model, segment_frame
 from radar4dgs.segment.metrics import ground_truth_masks, mask_scores
@@ -92,7 +92,7 @@ def save_palette_png(path: Path, rgb: np.ndarray) -> None:
 
     from PIL import Image
 
-    from radar4dgs.data.atomic import atomic_write_bytes
+    from radar4dgs.io.atomic import atomic_write_bytes
 
     buffer = BytesIO()
     Image.fromarray(rgb).quantize(colors=256, method=Image.Quantize.MEDIANCUT).save(buffer, format="PNG", optimize=True)

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from radar4dgs.config import preset
-from radar4dgs.data.synth import SynthConfig, synthesize
+from radar4dgs.datasets.synth import SynthConfig, synthesize
 
 
 def time_preset(name: str, seed: int, frames: int | None, workdir: Path) -> dict:

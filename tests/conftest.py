@@ -13,7 +13,7 @@ TINY_RUN_FRAMES = 8
 @pytest.fixture
 def one_torch_thread():
     """Tiny models on the shared 2-core CI machine: extra torch threads only spin."""
-    from radar4dgs.motion.fit import torch_threads
+    from radar4dgs.train.fit_motion import torch_threads
 
     with torch_threads(1):
         yield
@@ -25,10 +25,10 @@ def tiny_trained_run(tmp_path_factory) -> Path:
     and ``run/`` (20 training iterations; not evaluated). Tests may add files to the run folder but
     must not change what is there."""
     from radar4dgs.config import preset
-    from radar4dgs.data.synth import SynthConfig, synthesize
-    from radar4dgs.motion.fit import torch_threads
-    from radar4dgs.prepare import PrepareConfig, run_prepare
-    from radar4dgs.train.config import TrainConfig
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.train.fit_motion import torch_threads
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.model.config import TrainConfig
     from radar4dgs.train.trainer import train_run
 
     root = tmp_path_factory.mktemp("tiny-run")

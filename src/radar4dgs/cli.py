@@ -21,22 +21,22 @@ from radar4dgs.config import PRESET_NAMES, preset
 # name -> (module, class), ordered as the pipeline runs. A name may be two words
 # ("convert aimotive"): the dispatcher matches the longest name first.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("radar4dgs.demo", "DemoCommand"),
-    "synth": ("radar4dgs.data.synth.command", "SynthCommand"),
-    "convert aimotive": ("radar4dgs.data.convert.aimotive", "ConvertAimotiveCommand"),
-    "convert omnihd": ("radar4dgs.data.convert.omnihd", "ConvertOmnihdCommand"),
-    "convert vod": ("radar4dgs.data.convert.vod", "ConvertVodCommand"),
-    "inspect": ("radar4dgs.data.inspect", "InspectCommand"),
-    "seg-train": ("radar4dgs.segment.command", "SegTrainCommand"),
-    "prepare": ("radar4dgs.prepare", "PrepareCommand"),
+    "demo": ("radar4dgs.apps.demo", "DemoCommand"),
+    "synth": ("radar4dgs.datasets.synth.command", "SynthCommand"),
+    "convert aimotive": ("radar4dgs.datasets.convert.aimotive", "ConvertAimotiveCommand"),
+    "convert omnihd": ("radar4dgs.datasets.convert.omnihd", "ConvertOmnihdCommand"),
+    "convert vod": ("radar4dgs.datasets.convert.vod", "ConvertVodCommand"),
+    "inspect": ("radar4dgs.apps.inspect", "InspectCommand"),
+    "seg-train": ("radar4dgs.apps.seg_train", "SegTrainCommand"),
+    "prepare": ("radar4dgs.apps.prepare", "PrepareCommand"),
     "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand"),
-    "fit-motion": ("radar4dgs.motion.command", "FitMotionCommand"),
-    "train": ("radar4dgs.train.command", "TrainCommand"),
+    "fit-motion": ("radar4dgs.apps.fit_motion", "FitMotionCommand"),
+    "train": ("radar4dgs.apps.train", "TrainCommand"),
     "eval": ("radar4dgs.evaluate.reconstruction", "EvalCommand"),
-    "bench": ("radar4dgs.evaluate.bench", "BenchCommand"),
-    "render": ("radar4dgs.render.command", "RenderCommand"),
-    "export": ("radar4dgs.export.command", "ExportCommand"),
-    "view": ("radar4dgs.export.viewer", "ViewCommand"),
+    "bench": ("radar4dgs.apps.bench", "BenchCommand"),
+    "render": ("radar4dgs.apps.render", "RenderCommand"),
+    "export": ("radar4dgs.apps.export", "ExportCommand"),
+    "view": ("radar4dgs.apps.viewer", "ViewCommand"),
 }
 
 

@@ -15,7 +15,7 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, Mapping, Sequence, TypeVar
 
-from radar4dgs.data.atomic import atomic_write_json
+from radar4dgs.io.atomic import atomic_write_json
 
 PresetName = Literal["tiny", "small", "paper"]
 PRESET_NAMES: tuple[str, ...] = typing.get_args(PresetName)

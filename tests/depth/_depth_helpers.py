@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from radar4dgs.data.scene import Camera, Frame, RadarSpec, SceneWriter
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 from radar4dgs.depth.geometry import pixel_grid, pixel_rays
 
 WIDTH, HEIGHT = 160, 90

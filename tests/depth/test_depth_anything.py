@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from _depth_helpers import write_scene
-from radar4dgs.data.scene import read_scene
+from radar4dgs.io.scene import read_scene
 from radar4dgs.depth import DepthAnythingV2, DepthConfig, DepthModelError, DepthWarning, load_depth_anything, prepare_depth
 
 

@@ -11,7 +11,7 @@ from PIL import Image
 
 from _depth_helpers import write_scene
 from radar4dgs.config import load_config
-from radar4dgs.data.scene import read_scene
+from radar4dgs.io.scene import read_scene
 from radar4dgs.depth import DepthConfig, DepthWarning, depth_frontend_metrics, evaluate_depth_methods, prepare_depth
 
 

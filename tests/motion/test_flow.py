@@ -13,6 +13,9 @@ from radar4dgs.motion.flow import (backproject, bilinear_sample, build_raft, con
                                    lift_flow, load_raft, object_translation, raft_flow, reject_flow_outliers,
                                    rigid_object_flow, sample_depth)
 
+# Tiny tensors: on the shared 2-core CI machine extra torch threads only spin.
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 K = np.array([[100.0, 0.0, 39.5], [0.0, 100.0, 29.5], [0.0, 0.0, 1.0]])
 H, W = 60, 80
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from radar4dgs.data.scene import Camera, Frame, RadarSpec, SceneWriter
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 
 
 def directions(rng: np.random.Generator, n: int, az: float = 1.0, el: float = 0.25) -> np.ndarray:

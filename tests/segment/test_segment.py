@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from radar4dgs.data.scene import Camera, Frame, RadarSpec, SceneWarning, SceneWriter, read_scene
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWarning, SceneWriter, read_scene
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame
 from radar4dgs.segment.dataset import TrainFrame, load_radar_frame, load_train_frames
 from radar4dgs.segment.infer import (FrameSegmentation, SegInferConfig, frame_rng, prepare_masks, segment_frame)
@@ -297,7 +297,7 @@ def test_prepared_radar_npz_is_used(tmp_path):
 
 
 def test_parse_seeds():
-    from radar4dgs.segment.command import parse_seeds
+    from radar4dgs.apps.seg_train import parse_seeds
 
     assert parse_seeds("100-103,7, 9") == [100, 101, 102, 103, 7, 9]
 
@@ -328,7 +328,7 @@ def test_ray_box_depth_hits_front_face():
 def test_seg_train_command_end_to_end(tmp_path, monkeypatch):
     from radar4dgs import cli
 
-    monkeypatch.setitem(cli.COMMANDS, "seg-train", ("radar4dgs.segment.command", "SegTrainCommand"))
+    monkeypatch.setitem(cli.COMMANDS, "seg-train", ("radar4dgs.apps.seg_train", "SegTrainCommand"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         a, b = write_rect_scene(tmp_path / "a"), write_rect_scene(tmp_path / "b")

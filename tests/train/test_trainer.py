@@ -10,13 +10,14 @@ import pytest
 import torch
 
 from radar4dgs.config import preset
-from radar4dgs.data.synth import SynthConfig, synthesize
-from radar4dgs.motion.fit import torch_threads
-from radar4dgs.prepare import PrepareConfig, run_prepare
-from radar4dgs.train.config import TrainConfig
+from radar4dgs.datasets.synth import SynthConfig, synthesize
+from radar4dgs.train.fit_motion import torch_threads
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+from radar4dgs.model.config import TrainConfig
 from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
-from radar4dgs.train.gaussians import GaussianSet
-from radar4dgs.train.model import load_model, rasterizer_intrinsics, scale_intrinsics
+from radar4dgs.model.gaussians import GaussianSet
+from radar4dgs.model.scene_model import load_model
+from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
 from radar4dgs.train.trainer import (TrainingError, Trainer, binary_cross_entropy, exponential_lr,
                                      frame_order, inverse_depth_l1, psnr_of, step_generator, train_run)
 

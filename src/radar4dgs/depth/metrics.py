@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from radar4dgs.data.scene import read_mask_png
+from radar4dgs.io.scene import read_mask_png
 from radar4dgs.depth.sky import mask_iou
 
 # A frame counts as "pure scale" when its log depth ratios spread less than this (0.2 %).

@@ -25,7 +25,7 @@ import numpy as np
 from PIL import Image
 
 from radar4dgs.config import save_config, to_dict
-from radar4dgs.data.atomic import atomic_directory, atomic_write_json
+from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.depth.geometry import DirectionIndex, transform_points
 from radar4dgs.depth.scale import (DYNAMIC, DepthWarning, FrameFit, FrameParameters, confidence_map, fill_from_neighbours,
@@ -279,7 +279,7 @@ def prepare_depth(scene, prepared_dir: str | Path, config: DepthConfig | None = 
     ``<prepared>/radar/`` when the radar stage has run (see :func:`static_mask`).
 
     Args:
-        scene: a loaded :class:`~radar4dgs.data.scene.Scene`.
+        scene: a loaded :class:`~radar4dgs.io.scene.Scene`.
         prepared_dir: the prepared folder.
         config: the :class:`DepthConfig` (default: its defaults).
         progress: show tqdm progress bars (or a callable wrapping an iterable).

@@ -30,8 +30,8 @@ from typing import Any, Callable, Optional
 import numpy as np
 import tyro
 
-from radar4dgs.data.atomic import atomic_write_json
-from radar4dgs.data.scene import Scene, SceneError, SceneWarning, read_scene
+from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.scene import Scene, SceneError, SceneWarning, read_scene
 from radar4dgs.radar.ego_motion import unit_directions
 from radar4dgs.radar.poses import expected_radar_velocity
 from radar4dgs.radar.process import load_radar_outputs

@@ -29,15 +29,16 @@ import torch
 import tyro
 
 from radar4dgs.config import load_config
-from radar4dgs.data.atomic import atomic_directory, atomic_write_json
-from radar4dgs.data.inspect import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
-from radar4dgs.data.scene import SceneWarning, read_mask_png, read_scene
-from radar4dgs.evaluate.image_metrics import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
-from radar4dgs.motion.fit import normalized_times
-from radar4dgs.train.config import TrainConfig
-from radar4dgs.train.data import frame_view
-from radar4dgs.train.model import SceneModel, View, load_model
-from radar4dgs.train.trainer import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, MODEL_FILE, RUN_FILE
+from radar4dgs.io.atomic import atomic_directory, atomic_write_json
+from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
+from radar4dgs.io.scene import SceneWarning, read_mask_png, read_scene
+from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
+from radar4dgs.io.scene import normalized_times
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.scene_model import SceneModel, load_model
+from radar4dgs.model.view import View, frame_view
+from radar4dgs.model.run import HISTORY_FILE, Run, load_run
+from radar4dgs.train.trainer import LOSS_TERMS
 
 METRICS_FILE = "metrics.json"
 RENDERS_DIR = "renders"
@@ -45,30 +46,6 @@ VIDEO_FILE = "video.mp4"
 REPORT_FILE = "report.html"
 # One colour scale for every depth picture of a run, so the video does not flicker (metres).
 DEPTH_NEAR, DEPTH_FAR = 2.0, 120.0
-
-
-@dataclass
-class Run:
-    """A trained run folder, reloaded: the scene, its prepared folder, config and model."""
-
-    root: Path
-    scene: Any
-    prepared: Path
-    config: TrainConfig
-    model: SceneModel
-
-
-def load_run(run_dir: str | Path, device: str | None = None) -> Run:
-    """Reload ``run_dir`` (written by ``radar4dgs train``); errors name the missing file."""
-    root = Path(run_dir)
-    for name in (RUN_FILE, CONFIG_FILE, MODEL_FILE):
-        if not (root / name).is_file():
-            raise FileNotFoundError(f"{root / name}: missing; is {root} a finished `radar4dgs train` run?")
-    paths = json.loads((root / RUN_FILE).read_text())
-    config = load_config(TrainConfig, root / CONFIG_FILE)
-    scene = read_scene(paths["scene"])
-    model = load_model(root / MODEL_FILE, device=device or config.device)
-    return Run(root, scene, Path(paths["prepared"]), config, model)
 
 
 def to_uint8(image: torch.Tensor) -> np.ndarray:

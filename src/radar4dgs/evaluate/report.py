@@ -18,7 +18,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from radar4dgs.data.atomic import atomic_write_text
+from radar4dgs.io.atomic import atomic_write_text
 
 SPLITS = ("recon", "nvs")
 # (key, column header, format) of the per-split metrics, in table order.

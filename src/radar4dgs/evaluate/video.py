@@ -9,7 +9,7 @@ from typing import Iterable
 
 import numpy as np
 
-from radar4dgs.data.atomic import atomic_path
+from radar4dgs.io.atomic import atomic_path
 
 def _check_frame(frame: np.ndarray, index: int, shape: tuple[int, ...] | None) -> np.ndarray:
     frame = np.asarray(frame)

@@ -1,15 +1,9 @@
-"""Dynamic motion (DESIGN.md stage 6): the VGPT invertible deformation field, pseudo scene flow from
-optical flow, radar Doppler association, the two losses, and the standalone fit.
+"""Motion estimation (DESIGN.md stage 6, front end): pseudo scene flow from optical flow and
+radar Doppler association.
 
-Modules: :mod:`.field` (``DeformationField``, ``FieldConfig``), :mod:`.flow` (DIS/RAFT flow,
-consistency, lifting, ``prepare_flow``, ``motion_frontend_metrics``), :mod:`.association`
-(nearest dynamic radar point), :mod:`.losses` (``flow_loss``, ``radar_loss``), :mod:`.fit`
-(``run_fit``, ``MotionConfig``) and :mod:`.command` (``radar4dgs fit-motion``). Importing this
-package imports torch (through the field); the CLI imports it only for ``fit-motion``.
+Modules: :mod:`.flow` (DIS/RAFT flow, consistency, lifting, ``prepare_flow``,
+``motion_frontend_metrics``) and :mod:`.association` (nearest dynamic radar point). The
+deformation field they supervise is part of the scene model (:mod:`radar4dgs.model.field`), its
+losses are in :mod:`radar4dgs.metrics.losses`, and its standalone fit is
+:mod:`radar4dgs.train.fit_motion`.
 """
-
-from radar4dgs.motion.field import DeformationField, FieldConfig, normalization_from_points
-from radar4dgs.motion.losses import flow_loss, flow_residual, radar_loss, radar_residual
-
-__all__ = ["DeformationField", "FieldConfig", "normalization_from_points", "flow_loss", "flow_residual",
-           "radar_loss", "radar_residual"]

@@ -37,8 +37,8 @@ from typing import Any, Callable, ClassVar, Iterable, Literal, Mapping, Sequence
 import numpy as np
 
 from radar4dgs.config import to_dict
-from radar4dgs.data.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
-from radar4dgs.data.scene import read_mask_png
+from radar4dgs.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from radar4dgs.io.scene import read_mask_png
 
 DIS_PRESETS = ("ultrafast", "fast", "medium")
 
@@ -602,7 +602,7 @@ def prepare_flow(scene, prepared_dir: str | Path, config: FlowConfig | None = No
     replacing it atomically.
 
     Args:
-        scene: a loaded :class:`radar4dgs.data.scene.Scene`.
+        scene: a loaded :class:`radar4dgs.io.scene.Scene`.
         prepared_dir: the prepared folder (depth and masks are read from it, flow/ written into it).
         config: options (default :class:`FlowConfig`).
         depth_dir, mask_dir: override ``<prepared>/depth`` and ``<prepared>/masks`` (sources "prepared").
@@ -617,7 +617,7 @@ def prepare_flow(scene, prepared_dir: str | Path, config: FlowConfig | None = No
 
 
 def run_flow_stage(scene, out_dir: Path, config: FlowConfig, progress: Callable[[Iterable], Iterable]) -> dict:
-    """``radar4dgs.prepare`` stage runner: ``out_dir`` is the (temporary) ``<prepared>/flow`` folder,
+    """``radar4dgs.apps.prepare`` stage runner: ``out_dir`` is the (temporary) ``<prepared>/flow`` folder,
     so depth and masks are read from its parent, the prepared folder."""
     summary = write_flow(scene, Path(out_dir), config, Path(out_dir).parent, progress=progress)
     return {"pairs": summary["pairs"], "points": sum(p["points"] for p in summary["per_pair"])}

@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from radar4dgs.config import to_dict
-from radar4dgs.data.atomic import atomic_write_bytes, atomic_write_json
+from radar4dgs.io.atomic import atomic_write_bytes, atomic_write_json
 from radar4dgs.radar.classify import classify_dynamic
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion

@@ -11,15 +11,25 @@ Public entry points::
     prepare_masks(scene, prepared_dir, SegInferConfig())      # <prepared>/masks/<frame>.png
     segmentation_frontend_metrics(scene, prepared_dir)       # mask_iou, static_vehicle_fp
 
-Training: ``radar4dgs seg-train`` (:class:`radar4dgs.segment.command.SegTrainCommand`).
+Training: ``radar4dgs seg-train`` (:class:`radar4dgs.apps.seg_train.SegTrainCommand`).
 """
 
-from radar4dgs.segment.baseline import BaselineConfig, baseline_frame
-from radar4dgs.segment.infer import SegInferConfig, load_model, prepare_masks, segment_frame
-from radar4dgs.segment.metrics import segmentation_frontend_metrics
-from radar4dgs.segment.model import RadarCameraSegNet, SegModelConfig
-from radar4dgs.segment.train import SegTrainConfig, train_segmentation
+from __future__ import annotations
 
-__all__ = ["BaselineConfig", "baseline_frame", "SegInferConfig", "load_model", "prepare_masks", "segment_frame",
-           "segmentation_frontend_metrics", "RadarCameraSegNet", "SegModelConfig", "SegTrainConfig",
-           "train_segmentation"]
+import importlib
+from typing import Any
+
+from radar4dgs.segment.config import SegInferConfig, SegModelConfig, SegTrainConfig
+
+_LAZY = {"BaselineConfig": "baseline", "baseline_frame": "baseline", "load_model": "infer", "prepare_masks": "infer",
+         "segment_frame": "infer", "segmentation_frontend_metrics": "metrics", "RadarCameraSegNet": "model",
+         "train_segmentation": "train"}
+
+__all__ = ["SegInferConfig", "SegModelConfig", "SegTrainConfig", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    # Lazy, so that the configurations (and the CLI built from them) load without torch.
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"radar4dgs.segment.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from radar4dgs.data.scene import Scene
+from radar4dgs.io.scene import Scene
 from radar4dgs.segment.patches import RadarFrame, candidate_anchors, pixel_index
 
 

@@ -20,44 +20,17 @@ import numpy as np
 import torch
 
 from radar4dgs.config import to_dict
-from radar4dgs.data.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
-from radar4dgs.data.scene import Scene
+from radar4dgs.io.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
+from radar4dgs.io.scene import Scene
 from radar4dgs.segment.dataset import DynamicSource, load_radar_frame
 from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
 from radar4dgs.segment.patches import (AnchorSampling, RadarFrame, candidate_anchors, extract_patches, paste_max, patch_boxes,
                                        patch_side, radar_features, resize_patches, sample_anchors)
+from radar4dgs.segment.config import SegInferConfig
 
 # The checkpoint shipped in the package (segment/weights/), and its card.
 DEFAULT_WEIGHTS = "segnet-small.pt"
 DEFAULT_CARD = "segnet-small.json"
-
-
-@dataclass
-class SegInferConfig:
-    """How ``prepare`` turns radar and images into dynamic masks."""
-
-    method: Literal["model", "baseline"] = "model"  # the learned network, or the non-learned radar-prompted flood fill
-    checkpoint: Path | None = None  # network checkpoint (seg-train's best.pt); None = the one shipped in the package
-    threshold: float = 0.5  # tau: a pixel is dynamic when its pasted probability exceeds this
-    # Anchors and patch size depart from the paper (8 random anchors, 256 px patches at 1920 px):
-    # a frame has 30-140 dynamic radar points, mostly on the nearest car, so 8 random anchors
-    # often miss a second or distant car entirely, and a distant car (20 x 8 px at 320x180) fills
-    # too little of a full-size patch for the network to find it. On synthetic small seeds 1-5
-    # (pipeline radar), cover sampling with 64 anchors at 0.6 of the patch size left 5.0 % of the
-    # moving pixels unmarked against 10.8 % (mask IoU 0.906 against 0.875), at 0.10 s a frame.
-    num_anchors: int = 64  # most anchors per frame (fewer if fewer dynamic points, or cover stops earlier)
-    anchor_sampling: AnchorSampling = "cover"  # random (paper), farthest (FPS in the image), cover (no two anchors within cover_radius)
-    cover_radius: float = 0.1  # for "cover": minimum anchor spacing, as a fraction of the patch side
-    patch_scale: float = 0.6  # patch side = round(256 * W / 1920 * this) px (26 px at 320x180; paper: 1.0)
-    max_points: int = 64  # radar points per patch fed to the network (nearest to the anchor kept)
-    anchor_connected: bool = False  # keep, per patch, only the above-threshold regions touching the anchor (within anchor_radius)
-    anchor_radius: float = 0.08  # for anchor_connected: tolerance around the anchor pixel, as a fraction of the patch side
-    dynamic_source: DynamicSource = "auto"  # where dynamic radar points come from: prepared radar/, estimate, oracle (gt)
-    seed: int = 0  # anchor sampling seed (frame i uses seed + i, so masks are reproducible)
-    save_prob: bool = True  # also write <frame>_prob.npy (float16 pasted probabilities)
-    device: str = "cpu"  # torch device for the network
-
-    PRESETS = {"tiny": {"num_anchors": 4}, "small": {}, "paper": {}}
 
 
 @dataclass

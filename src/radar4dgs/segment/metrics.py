@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from radar4dgs.data.scene import Scene, read_mask_png
+from radar4dgs.io.scene import Scene, read_mask_png
 from radar4dgs.segment.infer import SegInferConfig, segment_scene
 
 # A box hit counts as the visible surface when it agrees with gt depth within this (relative + absolute).

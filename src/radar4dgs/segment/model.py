@@ -30,33 +30,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 from torchvision.models.resnet import BasicBlock
+from radar4dgs.segment.config import SegModelConfig
 
 # Per radar point features fed to the radar encoder, in this order (see patches.radar_features).
 RADAR_FEATURES = ("du", "dv", "dz", "range", "v_comp", "dynamic", "rcs")
 NUM_RADAR_FEATURES = len(RADAR_FEATURES)
 # Blocks per ResNet stage up to layer3; layer4 is dropped (see module docstring).
 RESNET_BLOCKS = {"resnet18": (2, 2, 2), "resnet34": (3, 4, 6)}
-
-
-@dataclass
-class SegModelConfig:
-    """Architecture of the segmentation network (saved in every checkpoint)."""
-
-    backbone: Literal["resnet18", "resnet34"] = "resnet18"  # torchvision ResNet block layout, truncated after layer3
-    backbone_width: int = 32  # channels of layer1 (layer2 ×2, layer3 ×4); 64 = torchvision, needed for ImageNet weights
-    input_size: int = 48  # side (px) every patch is resized to before the network, a multiple of 16 (43 px patches at 320x180)
-    attention_layers: int = 2  # number of (self, cross) attention pairs, LoFTR-style
-    attention_heads: int = 4  # heads of the linear attention; the token width must divide by it
-    decoder_width: int = 32  # channels of the U-Net decoder's first (coarsest) stage, halved per stage down to 16
-    radar_hidden: int = 64  # width of the per-point radar MLP before mean pooling
-    use_rcs: bool = False  # feed the radar cross-section (dataset-specific scale: off so a synthetic-trained model transfers)
-
-    PRESETS = {
-        "tiny": {"backbone_width": 8, "input_size": 32, "attention_layers": 1, "decoder_width": 8, "radar_hidden": 16},
-        "small": {},
-        "paper": {"backbone_width": 64, "input_size": 128, "attention_layers": 4, "decoder_width": 64,
-                  "radar_hidden": 128},
-    }
 
 
 # --------------------------------------------------------------------------------------------

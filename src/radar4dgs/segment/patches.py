@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from torchvision.ops import roi_align
 
 from radar4dgs.segment.model import NUM_RADAR_FEATURES
+from radar4dgs.segment.config import AnchorSampling
 
 # Reference patch size of the paper: 256×256 px at 1920×1080.
 PAPER_PATCH_SIDE = 256
@@ -97,9 +98,6 @@ def pixel_index(uv: np.ndarray) -> np.ndarray:
 def candidate_anchors(radar: RadarFrame, width: int, height: int) -> np.ndarray:
     """(M,) indices of the dynamic points that project inside the image."""
     return np.flatnonzero(radar.dynamic & in_image(radar.uv, width, height))
-
-
-AnchorSampling = Literal["random", "farthest", "cover"]
 
 
 def sample_anchors(uv: np.ndarray, candidates: np.ndarray, count: int, rng: np.random.Generator,

@@ -27,57 +27,14 @@ import torch
 import torch.nn.functional as F
 
 from radar4dgs.config import save_config, to_dict
-from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.segment.dataset import DynamicSource, TrainFrame
 from radar4dgs.segment.infer import SegInferConfig, frame_rng, image_tensor, patch_batch, segment_frame
 from radar4dgs.segment.model import (RadarCameraSegNet, SegModelConfig, checkpoint_payload, count_parameters,
                                      load_pretrained_backbone)
 from radar4dgs.segment.patches import (RadarFrame, candidate_anchors, extract_patches, in_image, patch_side,
                                        sample_anchors)
-
-
-@dataclass
-class AugmentConfig:
-    """Training augmentations (0 switches one off)."""
-
-    drop_points: float = 0.3  # each frame drops a fraction of its radar points drawn uniformly in [0, this]
-    velocity_noise: float = 0.3  # std of Gaussian noise added to the compensated radial velocity (m/s)
-    misalign_px: float = 2.0  # std of a per-frame shift of all projected radar points (px at 320 px width; scaled with W)
-    point_jitter_px: float = 0.7  # std of an independent per-point shift (px at 320 px width)
-    false_dynamic: float = 0.5  # chance per frame that a few static points in view are flagged dynamic
-    false_dynamic_max: int = 3  # at most this many falsely flagged points per such frame
-    colour_jitter: float = 0.2  # amplitude of brightness, contrast, saturation and per-channel gain changes
-    hflip: float = 0.5  # chance of a horizontal flip of image, mask and radar
-
-
-@dataclass
-class SegTrainConfig:
-    """Training of the radar–camera segmentation network."""
-
-    model: SegModelConfig = field(default_factory=SegModelConfig)  # architecture
-    augment: AugmentConfig = field(default_factory=AugmentConfig)  # augmentations
-    epochs: int = 20  # passes over the training frames
-    batch_size: int = 6  # frames per step (each gives up to num_anchors patches)
-    lr: float = 2e-4  # Adam learning rate (paper)
-    betas: tuple[float, float] = (0.9, 0.999)  # Adam betas (paper)
-    dice_weight: float = 1.0  # weight of the soft Dice term next to BCE
-    num_anchors: int = 8  # anchors per frame (fewer if fewer dynamic points)
-    patch_scale: float = 1.0  # patch side = round(256 * W / 1920 * this)
-    max_points: int = 64  # radar points per patch
-    dynamic_source: DynamicSource = "auto"  # dynamic radar points: prepared, estimate (radar front end), oracle (gt labels)
-    val_every: int = 2  # validate on every this-th frame of the validation scenes
-    time_limit_min: float | None = None  # stop after this many minutes (then validate and checkpoint)
-    pretrained_backbone: Path | None = None  # torchvision ImageNet ResNet state_dict (.pth) to start from; needs model.backbone_width=64
-    num_threads: int = 1  # torch CPU threads (1 leaves the rest of a shared machine free)
-    device: str = "cpu"  # torch device
-    seed: int = 0  # initialisation, shuffling, augmentation
-
-    PRESETS = {
-        "tiny": {"model": SegModelConfig.PRESETS["tiny"], "epochs": 2, "batch_size": 2, "num_anchors": 4,
-                 "max_points": 16},
-        "small": {},
-        "paper": {"model": SegModelConfig.PRESETS["paper"], "epochs": 50, "num_threads": 0},
-    }
+from radar4dgs.segment.config import AugmentConfig, SegTrainConfig
 
 
 # --------------------------------------------------------------------------------------------

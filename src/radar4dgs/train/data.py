@@ -16,49 +16,15 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from radar4dgs.data.scene import read_mask_png
-from radar4dgs.motion.fit import (FitConfig, FlowSamples, RadarSamples, collect_radar_samples,
-                                  flow_samples_from_pairs, normalized_times)
+from radar4dgs.io.scene import read_mask_png
+from radar4dgs.io.scene import normalized_times
+from radar4dgs.train.fit_motion import (FitConfig, FlowSamples, RadarSamples, collect_radar_samples,
+                                        flow_samples_from_pairs)
 from radar4dgs.motion.flow import FlowConfig, load_flow_pairs
-from radar4dgs.train.config import TrainConfig
-from radar4dgs.train.gaussians import require_prepared
-from radar4dgs.train.model import View, scale_intrinsics
-from radar4dgs.train.sky import camera_ray_directions
-
-
-def resized_size(width: int, height: int, scale: float) -> tuple[int, int]:
-    """(width, height) of the image at ``scale`` (at least 1 pixel each)."""
-    return max(1, round(width * scale)), max(1, round(height * scale))
-
-
-def resize_image(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Area-averaged resize of an (H, W, C) or (H, W) image to ``size`` = (width, height)."""
-    if image.shape[1] == size[0] and image.shape[0] == size[1]:
-        return image
-    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-
-
-def resize_nearest(array: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Nearest-neighbour resize (depth keeps real values; masks stay masks)."""
-    if array.shape[1] == size[0] and array.shape[0] == size[1]:
-        return array
-    dtype = array.dtype
-    out = cv2.resize(array.astype(np.float32), size, interpolation=cv2.INTER_NEAREST)
-    return out.astype(dtype)
-
-
-def camera_view(camera, world_to_camera: np.ndarray, time: float, scale: float = 1.0) -> View:
-    """The :class:`View` of the scene's ``camera`` at pose ``world_to_camera`` (4, 4) and normalised
-    ``time``, rendered at ``scale`` of its resolution. K is scaled by the ratio of the rounded
-    widths, not by ``scale`` itself, so the focal length matches the image actually rendered."""
-    width, height = resized_size(camera.width, camera.height, scale)
-    return View(np.asarray(world_to_camera, dtype=np.float64), scale_intrinsics(camera.K, width / camera.width),
-                width, height, float(time))
-
-
-def frame_view(scene, index: int, scale: float, times: np.ndarray) -> View:
-    """The :class:`View` of frame ``index`` at resolution ``scale``."""
-    return camera_view(scene.camera, scene.world_to_camera(index), times[index], scale)
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.gaussians import require_prepared
+from radar4dgs.model.view import View, frame_view, resize_image, resize_nearest, resized_size
+from radar4dgs.model.sky import camera_ray_directions
 
 
 @dataclass
@@ -82,7 +48,7 @@ BASELINE_MASK_DIR = "masks_baseline"
 def baseline_mask_dir(scene, prepared: Path, progress: bool = False) -> Path:
     """``prepared/masks_baseline``: the non-learned radar flood-fill masks of every frame, computed
     once (atomically, from the prepared radar and depth) and reused after."""
-    from radar4dgs.data.atomic import atomic_directory
+    from radar4dgs.io.atomic import atomic_directory
     from radar4dgs.segment.infer import SegInferConfig, prepare_masks
 
     folder = Path(prepared) / BASELINE_MASK_DIR

@@ -29,27 +29,23 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from radar4dgs.config import config_difference, from_dict, read_config_dict, save_config, to_dict
-from radar4dgs.data.atomic import atomic_save_torch, atomic_write_json
-from radar4dgs.data.scene import Scene, read_scene
-from radar4dgs.evaluate.image_metrics import ssim_loss_value
-from radar4dgs.motion.field import DeformationField
-from radar4dgs.motion.fit import normalized_times, torch_threads
-from radar4dgs.motion.losses import flow_loss, radar_loss
-from radar4dgs.train.config import TrainConfig
+from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.io.scene import Scene, read_scene
+from radar4dgs.metrics.image import ssim_loss_value
+from radar4dgs.model.field import DeformationField
+from radar4dgs.io.scene import normalized_times
+from radar4dgs.train.fit_motion import torch_threads
+from radar4dgs.metrics.losses import flow_loss, radar_loss
+from radar4dgs.model.config import TrainConfig
 from radar4dgs.train.data import (FrameTargets, MotionTargets, dynamic_masks, load_frame_targets,
                                   load_motion_targets)
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
-from radar4dgs.train.gaussians import GaussianInitConfig, GaussianSet, backproject_frames, to_canonical
-from radar4dgs.train.model import SceneModel
-from radar4dgs.train.motion_models import OffsetField
-from radar4dgs.train.sky import SkyEnvironment
+from radar4dgs.model.gaussians import GaussianInitConfig, GaussianSet, backproject_frames, to_canonical
+from radar4dgs.model.scene_model import SceneModel
+from radar4dgs.model.motion_models import OffsetField
+from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, HISTORY_FILE, LAST_CHECKPOINT, MODEL_FILE, RUN_FILE
+from radar4dgs.model.sky import SkyEnvironment
 
-RUN_FILE = "run.json"
-CONFIG_FILE = "config.json"
-MODEL_FILE = "model.pt"
-CHECKPOINT_DIR = "checkpoints"
-LAST_CHECKPOINT = "last.pt"
-HISTORY_FILE = "history.json"
 # The named terms of the training loss, as logged in history.json.
 LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
 

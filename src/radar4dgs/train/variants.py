@@ -65,7 +65,7 @@ def variant_values(name: str) -> Mapping[str, Any]:
 def apply_variant(config, name: str):
     """``config`` (a :class:`TrainConfig`) with the fields of method ``name`` set."""
     from radar4dgs.config import from_dict, to_dict
-    from radar4dgs.train.config import TrainConfig
+    from radar4dgs.model.config import TrainConfig
 
     return from_dict(TrainConfig, merge(to_dict(config), variant_values(name)), partial=False)
 
@@ -74,7 +74,7 @@ def variant_config(preset_name: PresetName, name: str, **overrides: Any):
     """The :class:`TrainConfig` of method ``name`` on preset ``preset_name``, with ``overrides``
     (nested dicts merged, as :func:`radar4dgs.config.preset`) applied before the method's own
     fields, so a method always is what its name says."""
-    from radar4dgs.train.config import TrainConfig
+    from radar4dgs.model.config import TrainConfig
 
     values = merge(TrainConfig.PRESETS.get(preset_name, {}), overrides)
     return apply_variant(preset(TrainConfig, preset_name, **values), name)

@@ -1,0 +1,183 @@
+"""The ``prepare`` command: the front-end stages that turn a scene folder into a prepared folder.
+
+Stages run in order, each writing ``<prepared>/<stage>/``. A stage is skipped when its folder holds
+a ``stage.json`` written for the same stage config and the same ``scene.json``; ``--force`` redoes
+it. Each stage folder is written in a temporary folder and renamed into place, so an interrupted
+run leaves either the old outputs or none. The resolved config is saved as
+``<prepared>/config.json``. Later issues add stages (depth, segmentation, ...) to ``STAGES``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Mapping, Optional
+
+import tyro
+from tqdm import tqdm
+
+from radar4dgs.config import PresetName, save_config, to_dict
+from radar4dgs.io.atomic import atomic_directory, atomic_write_json
+from radar4dgs.io.scene import Scene, SceneError, read_scene
+from radar4dgs.depth.config import DepthConfig
+from radar4dgs.motion.flow import FlowConfig, run_flow_stage
+from radar4dgs.radar.config import RadarConfig
+from radar4dgs.segment.config import SegInferConfig
+
+STAGE_MARKER = "stage.json"
+
+
+@dataclass
+class PrepareConfig:
+    """Configuration of every prepare stage (one field per stage)."""
+
+    # Stage "radar": ego-motion RANSAC, dynamic points, compensated Doppler.
+    radar: RadarConfig = field(default_factory=RadarConfig)
+    # Stage "depth": monocular depth made metric by the static radar points; sky masks.
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    # Stage "masks": radar-camera dynamic segmentation (the shipped network by default).
+    masks: SegInferConfig = field(default_factory=SegInferConfig)
+    # Stage "flow": optical flow between training frames lifted to 3D scene flow on dynamic pixels.
+    flow: FlowConfig = field(default_factory=FlowConfig)
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {})),
+               "masks": dict(SegInferConfig.PRESETS.get(name, {})), "flow": dict(FlowConfig.PRESETS.get(name, {}))}
+        for name in ("tiny", "small", "paper")}
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One prepare stage: its folder name (also its field of :class:`PrepareConfig`) and its
+    runner ``run(scene, out_dir, stage_config, progress) -> summary dict``."""
+
+    name: str
+    run: Callable[..., dict]
+
+
+# Each runner imports its stage when it runs: the stages pull in torch and OpenCV, which
+# `radar4dgs prepare --help` should not wait for.
+def _run_radar(scene: Scene, out_dir: Path, config: RadarConfig, progress: Callable) -> dict:
+    from radar4dgs.radar.process import prepare_radar
+
+    summary = prepare_radar(scene, out_dir, config, progress)
+    return {"frames": summary["num_frames"], "ok": summary["num_ok"]}
+
+
+def _run_depth(scene: Scene, out_dir: Path, config: DepthConfig, progress: Callable) -> dict:
+    from radar4dgs.depth.pipeline import write_depth
+
+    # The radar stage has already been renamed into place beside this stage's temporary folder.
+    summary = write_depth(scene, out_dir, out_dir / "sky", config, progress,
+                          radar_dir=out_dir.parent / "radar")
+    return {"frames": len(summary["frames"]), "fallback_frames": len(summary.get("fallbacks", []))}
+
+
+def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Callable) -> dict:
+    from radar4dgs.segment.infer import prepare_masks
+
+    summary = prepare_masks(scene, out_dir.parent, config, out_dir=out_dir, progress=progress)
+    return {"frames": len(summary["frames"]),
+            "frames_with_dynamic_pixels": sum(f["dynamic_pixels"] > 0 for f in summary["frames"])}
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage("radar", _run_radar),
+    Stage("depth", _run_depth),
+    Stage("masks", _run_masks),
+    Stage("flow", run_flow_stage),
+)
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """sha256 of ``scene.json``: a stage's outputs are reused only for the same scene metadata."""
+    return hashlib.sha256((scene.root / "scene.json").read_bytes()).hexdigest()
+
+
+def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bool:
+    marker = stage_dir / STAGE_MARKER
+    if not marker.is_file():
+        return False
+    try:
+        saved = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return False
+    return saved.get("config") == to_dict(stage_config) and saved.get("scene") == fingerprint
+
+
+def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareConfig | None = None,
+                force: bool = False, only: tuple[str, ...] = (), progress: bool = True) -> dict[str, str]:
+    """Run the stages (all, or those named in ``only``) and return ``{stage: "ran" | "skipped"}``."""
+    config = config or PrepareConfig()
+    scene = read_scene(scene_path)
+    prepared = Path(prepared) if prepared is not None else Path(scene_path) / "prepared"
+    known = [s.name for s in STAGES]
+    unknown = [name for name in only if name not in known]
+    if unknown:
+        raise ValueError(f"unknown stage(s) {unknown}; stages are {known}")
+    prepared.mkdir(parents=True, exist_ok=True)
+    save_config(config, prepared / "config.json")
+    fingerprint = scene_fingerprint(scene)
+    status: dict[str, str] = {}
+    # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
+    upstream_changed = False
+    for stage in STAGES:
+        if only and stage.name not in only:
+            continue
+        stage_dir = prepared / stage.name
+        stage_config = getattr(config, stage.name)
+        if not force and not upstream_changed and stage_is_current(stage_dir, stage_config, fingerprint):
+            status[stage.name] = "skipped"
+            continue
+        upstream_changed = True
+
+        def bar(items, _name=stage.name):
+            # Stages iterate over frames, or over frame pairs (flow); generators are per frame.
+            total = len(items) if hasattr(items, "__len__") else len(scene)
+            return tqdm(items, total=total, desc=_name, unit="item", disable=not progress)
+
+        with atomic_directory(stage_dir, overwrite=True) as tmp:
+            result = stage.run(scene, tmp, stage_config, bar)
+            atomic_write_json(tmp / STAGE_MARKER, {"stage": stage.name, "config": to_dict(stage_config),
+                                                   "scene": fingerprint, "result": result})
+        status[stage.name] = "ran"
+    return status
+
+
+@dataclass
+class PrepareCommand:
+    """Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, scene flow."""
+
+    # The scene folder.
+    scene: tyro.conf.Positional[Path]
+    # The prepared folder; default <scene>/prepared.
+    out: Optional[Path] = None
+    # Preset the stage configs start from.
+    preset: PresetName = "small"
+    # Stage configs (filled from --preset, then overridden by the options below).
+    config: PrepareConfig = field(default_factory=PrepareConfig)
+    # Redo stages even when their outputs exist for the same config.
+    force: bool = False
+    # Run only these stages (default: all, in order).
+    only: tuple[str, ...] = ()
+    # Hide the progress bars.
+    quiet: bool = False
+
+    PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": PrepareConfig}
+
+    def run(self) -> int:
+        from radar4dgs.depth.sources import DepthModelError
+
+        try:
+            status = run_prepare(self.scene, self.out, self.config, self.force, tuple(self.only),
+                                 progress=not self.quiet)
+        except (SceneError, ValueError, FileExistsError, DepthModelError) as exc:
+            print(f"radar4dgs prepare: {exc}", file=sys.stderr)
+            return 1
+        prepared = self.out if self.out is not None else self.scene / "prepared"
+        for name, what in status.items():
+            print(f"{name}: {what} -> {prepared / name}")
+        return 0

@@ -1,0 +1,220 @@
+"""``radar4dgs render RUN --trajectory SPEC``: re-render a trained run along a camera path.
+
+The path is built by :func:`radar4dgs.apps.trajectory.build_trajectory` from the scene's recorded
+cameras (every frame, test frames included, in time order) and their normalised times; each pose is
+rendered by the run's model at the pose's time, so dynamic objects move with the scene time
+(``stop-time:T`` freezes them while the camera keeps moving).
+
+Outputs (``<slug>`` is the spec made file-name safe, e.g. ``lane-shift_2``, ``stop-time_0.5``,
+``custom_<file stem>``, with ``_x<K>`` for ``--interpolate K`` and ``_s<S>`` for ``--scale S``):
+
+- ``RUN/renders/<slug>/<00000>.png`` one RGB frame per pose; with ``--with-depth`` also
+  ``<00000>_depth.png`` and ``<00000>_dynamic.png`` (eval's colour scale and mask threshold);
+  ``trajectory.json``: the rendered poses, in the ``custom:FILE`` format, so a path can be
+  replayed or edited. The folder is written under a temporary name and renamed when complete.
+- ``RUN/<slug>.mp4``: the frames (rgb | depth | dynamic side by side with ``--with-depth``).
+
+``--out DIR`` puts the frames in ``DIR`` and the video in ``DIR/<slug>.mp4`` instead.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Optional
+
+import numpy as np
+import torch
+import tyro
+
+from radar4dgs.apps.trajectory import CameraPose, TrajectorySpec, build_trajectory, parse_trajectory
+
+TRAJECTORY_FILE = "trajectory.json"
+# The rendered values whose finiteness is checked: a NaN anywhere in them means a broken model or
+# a degenerate camera, and would silently become black pixels in a PNG.
+_CHECKED = ("rgb", "depth", "alpha", "dynamic")
+
+
+class NonFiniteRenderError(ValueError):
+    """A rendered pixel is NaN or infinite."""
+
+
+@dataclass
+class RenderResult:
+    """What :func:`render_trajectory` wrote: ``frames`` folder, ``video`` path (None without one),
+    ``slug``, number of rendered ``poses`` and the image size ``width`` x ``height``."""
+
+    frames: Path
+    video: Optional[Path]
+    slug: str
+    poses: int
+    width: int
+    height: int
+
+
+def trajectory_slug(spec: TrajectorySpec, interpolate: int = 1, scale: float = 1.0) -> str:
+    """File-name-safe name of a rendering: ``recorded``, ``lane-shift_-1.5``, ``custom_loop_x4``, ..."""
+    if spec.kind == "custom":
+        body = f"custom_{spec.path.stem if spec.path is not None else 'path'}"
+    else:
+        body = spec.text.strip().lower().replace(":", "_", 1)
+    if interpolate > 1:
+        body += f"_x{interpolate}"
+    if scale != 1.0:
+        body += f"_s{scale:g}"
+    # Anything but letters, digits and . + - (slashes, spaces, a second colon) would make a bad
+    # or nested file name.
+    return re.sub(r"[^A-Za-z0-9.+-]+", "_", body).strip("_") or "trajectory"
+
+
+def check_finite(out: dict, where: str) -> None:
+    """Raise :class:`NonFiniteRenderError` naming ``where`` if a rendered map has NaN/inf."""
+    for key in _CHECKED:
+        value = out[key]
+        bad = ~torch.isfinite(value)
+        if bool(bad.any()):
+            count = int(bad.reshape(value.shape[0], value.shape[1], -1).any(dim=-1).sum())
+            raise NonFiniteRenderError(
+                f"{where}: the rendered {key} has {count} non-finite pixel(s) (NaN/inf); the model "
+                "holds non-finite parameters or the camera pose is degenerate")
+
+
+@torch.no_grad()
+def render_pose(run, pose: CameraPose, scale: float = 1.0) -> dict[str, torch.Tensor]:
+    """Render ``pose`` with ``run``'s model (no gradient, no dropout) at ``scale`` of the recorded
+    resolution: ``rgb`` (H, W, 3), ``depth`` (H, W), ``alpha`` (H, W), ``dynamic`` (H, W)."""
+    from radar4dgs.evaluate.reconstruction import render_view
+    from radar4dgs.model.view import camera_view
+
+    return render_view(run, camera_view(run.scene.camera, pose.world_to_camera, pose.time, scale))
+
+
+def recorded_cameras(scene) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's recorded cameras: world_to_camera (N, 4, 4) and normalised times (N,)."""
+    from radar4dgs.io.scene import normalized_times
+
+    w2c = np.stack([scene.world_to_camera(i) for i in range(len(scene))]).astype(np.float64)
+    return w2c, normalized_times(scene)
+
+
+def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int = 1, with_depth: bool = False,
+                      out: Path | None = None, fps: float = 10.0, scale: float = 1.0, device: str | None = None,
+                      video: bool = True, progress: bool = True) -> RenderResult:
+    """Render the run in ``run_dir`` (a path, or a loaded :class:`~radar4dgs.evaluate.reconstruction.Run`)
+    along ``trajectory``; see the module docstring for the outputs. Raises ValueError on a bad spec
+    or option, FileNotFoundError on an incomplete run, :class:`NonFiniteRenderError` on NaN pixels
+    (nothing is left behind then)."""
+    from radar4dgs.io.atomic import atomic_directory
+    from radar4dgs.io.preview import save_png
+    from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, RENDERS_DIR, to_uint8
+    from radar4dgs.model.run import Run, load_run
+    from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
+    from radar4dgs.apps.trajectory import write_custom_trajectory
+    from radar4dgs.model.view import resized_size
+
+    if isinstance(interpolate, bool) or not isinstance(interpolate, int) or interpolate < 1:
+        raise ValueError(f"--interpolate must be an integer >= 1, got {interpolate!r}")
+    if not (np.isfinite(scale) and 0 < scale <= 4):
+        raise ValueError(f"--scale must lie in (0, 4] (a fraction of the recorded resolution), got {scale}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"--fps must be positive, got {fps}")
+    spec = parse_trajectory(trajectory)  # a bad spec or custom file fails before the model loads
+    run = run_dir if isinstance(run_dir, Run) else load_run(run_dir, device)
+    w2c, times = recorded_cameras(run.scene)
+    poses = build_trajectory(spec, w2c, times, interpolate=interpolate)
+    slug = trajectory_slug(spec, interpolate, scale)
+    frames_dir = Path(out) if out is not None else run.root / RENDERS_DIR / slug
+    video_path = (frames_dir / f"{slug}.mp4" if out is not None else run.root / f"{slug}.mp4") if video else None
+    width, height = resized_size(run.scene.camera.width, run.scene.camera.height, scale)
+    # The folder is replaced whole: refuse to replace one that is not an earlier rendering (a
+    # mistyped --out must not wipe an unrelated folder).
+    if frames_dir.exists() and (not frames_dir.is_dir() or (any(frames_dir.iterdir())
+                                                           and not (frames_dir / TRAJECTORY_FILE).is_file())):
+        raise ValueError(f"{frames_dir}: exists and is not an earlier `radar4dgs render` output (no "
+                         f"{TRAJECTORY_FILE}); choose another --out")
+
+    indices = range(len(poses))
+    if progress:
+        from tqdm import tqdm
+
+        indices = tqdm(indices, desc=f"render {slug}", unit="view")
+
+    def frames(folder: Path) -> Iterator[np.ndarray]:
+        for i in indices:
+            pose = poses[i]
+            rendered = render_pose(run, pose, scale)
+            check_finite(rendered, f"view {i} of trajectory {spec.text!r} (time {pose.time:.4f})")
+            rgb = to_uint8(rendered["rgb"])
+            save_png(folder / f"{i:05d}.png", rgb)
+            if not with_depth:
+                yield rgb
+                continue
+            alpha = rendered["alpha"].cpu().numpy()
+            depth = depth_to_rgb(np.where(alpha > 0.05, rendered["depth"].cpu().numpy(), np.nan),
+                                 near=DEPTH_NEAR, far=DEPTH_FAR)
+            dynamic = mask_to_rgb(rendered["dynamic"].cpu().numpy() > 0.5)
+            save_png(folder / f"{i:05d}_depth.png", depth)
+            save_png(folder / f"{i:05d}_dynamic.png", dynamic)
+            yield side_by_side([rgb, depth, dynamic], [f"render t={pose.time:.3f}", "depth", "dynamic"])
+
+    with atomic_directory(frames_dir, overwrite=True) as folder:
+        write_custom_trajectory(folder / TRAJECTORY_FILE, poses)
+        if video_path is None:
+            for _ in frames(folder):
+                pass
+        else:
+            from radar4dgs.evaluate.video import write_video
+
+            # The video is encoded while rendering, so a long path never holds all its frames in
+            # memory; with --out it lands inside the temporary folder and moves with it.
+            target = folder / video_path.name if out is not None else video_path
+            write_video(frames(folder), target, fps=fps)
+    return RenderResult(frames_dir, video_path, slug, len(poses), width, height)
+
+
+@dataclass
+class RenderCommand:
+    """Re-render a trained run along a camera path: recorded, lane shift, height, bullet time or custom."""
+
+    # The run folder written by `radar4dgs train`.
+    run_dir: tyro.conf.Positional[Path]
+    # Camera path: recorded | lane-shift:M (metres, + = left) | height:M (metres, + = up) |
+    # stop-time:T (integer = frame index, decimal = normalised time in [0, 1]) | custom:FILE (JSON).
+    trajectory: str = "recorded"
+    # Insert K - 1 interpolated views between consecutive poses (smoother video).
+    interpolate: int = 1
+    # Also write depth and dynamic-mask pictures; the video shows rgb | depth | dynamic.
+    with_depth: bool = False
+    # Folder for the frames (and the video); default RUN/renders/<slug> and RUN/<slug>.mp4.
+    out: Optional[Path] = None
+    # Frame rate of the video.
+    fps: float = 10.0
+    # Render at this fraction of the recorded resolution (0.5 = half width and height).
+    scale: float = 1.0
+    # Torch device (default: the one the run was trained on).
+    device: Optional[str] = None
+    # Write the video.
+    video: bool = True
+    # Torch intra-op threads (0 = torch's default; 1 is much faster on a machine busy with other jobs).
+    threads: int = 0
+    # Hide the progress bar.
+    quiet: bool = False
+
+    def run(self) -> int:
+        from radar4dgs.io.scene import SceneError
+        from radar4dgs.train.fit_motion import torch_threads
+
+        try:
+            with torch_threads(self.threads):
+                result = render_trajectory(self.run_dir, self.trajectory, interpolate=self.interpolate,
+                                           with_depth=self.with_depth, out=self.out, fps=self.fps,
+                                           scale=self.scale, device=self.device, video=self.video,
+                                           progress=not self.quiet)
+        except (SceneError, FileNotFoundError, ValueError) as exc:
+            print(f"radar4dgs render: {exc}", file=sys.stderr)
+            return 1
+        print(f"rendered {result.poses} views ({result.width}x{result.height}) of {self.trajectory!r}: "
+              f"{result.frames}/" + (f", {result.video}" if result.video is not None else ""))
+        return 0

@@ -1,0 +1,87 @@
+"""The two supervision terms of the deformation field (DESIGN.md stage 6), as functions the trainer
+and the standalone fit call.
+
+- ``L_flow = mean_n |D_tj(D_ti^-1(x_i)) - x_j|^2``: pseudo scene flow pairs (x_i at t_i, x_j at
+  t_j) must be carried onto each other. Squared Euclidean norm (m^2) per pair.
+- ``L_rad = mean_n |F . (x - A) / |x - A| - v_r dt|``: F = D_tj(D_ti^-1(x)) - x, the predicted
+  displacement of the point x of time t_i over dt = (timestamp_j - timestamp_i) seconds (a world
+  vector: the world frame is the same at every time, so "the frame of time i" is just the start
+  point x of the displacement); A the radar centre (world) at time i; v_r the compensated radial
+  velocity of the associated radar point (m/s, positive receding). Absolute value (m) per point.
+
+Reduction: the paper writes sums; we return means over the (valid) points by default, so the loss
+weights do not depend on how many points or Gaussians a batch holds (``reduction="sum"`` gives the
+paper's form). Each function has a pure residual form (tensors in, per-point residuals out) for
+hand-checkable tests, and a field form that evaluates the field.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from radar4dgs.model.field import DeformationField
+
+Reduction = Literal["mean", "sum", "none"]
+
+
+def _reduce(values: Tensor, weight: Tensor | None, reduction: Reduction) -> Tensor:
+    if weight is not None:
+        values = values * weight
+    if reduction == "none":
+        return values
+    if reduction == "sum":
+        return values.sum()
+    if reduction == "mean":
+        if values.numel() == 0:
+            return values.sum()  # 0, still attached to the graph
+        denominator = weight.sum().clamp_min(1e-12) if weight is not None else values.numel()
+        return values.sum() / denominator
+    raise ValueError(f"unknown reduction {reduction!r}; choose 'mean', 'sum' or 'none'")
+
+
+def flow_residual(predicted_j: Tensor, x_j: Tensor) -> Tensor:
+    """(N,) squared distances ``|predicted_j - x_j|^2`` between (N, 3) warped points and targets."""
+    return ((predicted_j - x_j) ** 2).sum(dim=-1)
+
+
+def radar_residual(displacement: Tensor, x: Tensor, centre: Tensor, v_r: Tensor, dt: Tensor | float) -> Tensor:
+    """(N,) ``|F . (x - A) / |x - A| - v_r dt|``.
+
+    Args:
+        displacement: (N, 3) predicted displacement F over dt (m).
+        x: (N, 3) the points at time i (world); centre: (3,) or (N, 3) radar centre A (world).
+        v_r: (N,) compensated radial velocity (m/s); dt: scalar or (N,) seconds.
+    """
+    direction = x - centre
+    direction = direction / direction.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    return ((displacement * direction).sum(dim=-1) - v_r * dt).abs()
+
+
+def flow_loss(field: DeformationField, x_i: Tensor, x_j: Tensor, t_i: Tensor | float, t_j: Tensor | float,
+              weight: Tensor | None = None, reduction: Reduction = "mean") -> Tensor:
+    """``L_flow`` for (N, 3) point pairs ``x_i`` (time ``t_i``) -> ``x_j`` (time ``t_j``); times
+    scalar or (N,) in [0, 1]; optional (N,) ``weight``. Mean (default) is the weighted mean."""
+    return _reduce(flow_residual(field.warp(x_i, t_i, t_j), x_j), weight, reduction)
+
+
+def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Tensor | float,
+               dt: Tensor | float, centre: Tensor, v_r: Tensor, weight: Tensor | None = None,
+               reduction: Reduction = "mean") -> Tensor:
+    """``L_rad`` for (N, 3) points ``x`` at time ``t_i``, displaced to ``t_j``.
+
+    Args:
+        dt: seconds between the two times (scalar or (N,)); centre: (3,) or (N, 3) radar centre
+        at time i; v_r: (N,) associated compensated radial velocity, NaN = unmatched (excluded,
+        as if its weight were 0).
+    """
+    matched = torch.isfinite(v_r)
+    if not bool(matched.all()):
+        def per_point(value, ndim):  # select matched rows of per-point inputs, keep shared ones
+            return value[matched] if torch.is_tensor(value) and value.ndim == ndim else value
+        x, centre, v_r = x[matched], per_point(centre, 2), v_r[matched]
+        t_i, t_j, dt, weight = (per_point(v, 1) for v in (t_i, t_j, dt, weight))
+    residual = radar_residual(field.displacement(x, t_i, t_j), x, centre, v_r, dt)
+    return _reduce(residual, weight, reduction)

@@ -1,0 +1,180 @@
+"""The reconstructed scene: static Gaussians, canonical dynamic Gaussians moved by the VGPT field,
+and a sky environment map; one render function shared by training, evaluation and rendering.
+The baselines (issue 10) use the same model: their motion is per-Gaussian parameters of a set
+(PVG, B-splines; :mod:`radar4dgs.model.motion_models`) or an offset MLP over every Gaussian.
+
+A render composites every Gaussian once with four feature channels ``(r, g, b, is_dynamic)`` and
+the expected depth, so the dynamic-mask render (for the object loss and the evaluation pictures)
+costs nothing extra; the sky fills ``1 - alpha`` of each pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from radar4dgs.config import from_dict, to_dict
+from radar4dgs.model.field import DeformationField, FieldConfig
+from radar4dgs.render.api import RasterConfig, rasterize
+from radar4dgs.model.gaussians import GaussianSet
+from radar4dgs.model.motion_models import (BaselineConfig, OffsetField, bspline_means, pvg_means,
+                                           temporal_visibility)
+from radar4dgs.model.sky import SkyEnvironment, camera_ray_directions
+from radar4dgs.model.view import View, rasterizer_intrinsics, scale_intrinsics
+
+# The rasterizer's depth range: the synthetic and real scenes reach ~150 m; sky is left to the map.
+NEAR_PLANE = 0.05
+FAR_PLANE = 1000.0
+
+
+class SceneModel(nn.Module):
+    """Static Gaussians, dynamic Gaussians (canonical; None before stage 2 and for the methods with
+    no dynamic set), the deformation field (only "ours"), the sky map, and the baselines' pieces:
+    ``offsets`` (deformable) and ``baseline`` (their config: PVG's period)."""
+
+    def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
+                 dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
+                 baseline: BaselineConfig | None = None):
+        super().__init__()
+        self.static = static
+        self.sky = sky
+        self.field = field
+        self.dynamic = dynamic
+        self.offsets = offsets
+        self.baseline = baseline or BaselineConfig()
+
+    @property
+    def num_gaussians(self) -> int:
+        return len(self.static) + (len(self.dynamic) if self.dynamic is not None else 0)
+
+    def set_at(self, name: str, time: float) -> dict[str, Tensor]:
+        """Activated Gaussians of set ``name`` ("static" or "dynamic") at normalised ``time``:
+        ``means`` (N, 3) moved by whatever moves this set (the VGPT field for the dynamic set,
+        its B-spline or PVG parameters, the offset MLP), ``opacities`` (N,) times the temporal
+        visibility where the set has a life span, and ``quats``, ``scales``, ``colors``."""
+        gaussians = getattr(self, name)
+        g = gaussians.activated()
+        p = gaussians.params
+        time = float(time)
+        if name == "dynamic" and self.field is not None:
+            g["means"] = self.field(g["means"], time)
+        if gaussians.has("control"):
+            g["means"] = bspline_means(g["means"], p["control"], time)
+        if gaussians.has("velocity"):
+            g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
+        if gaussians.has("log_lifespan"):
+            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)
+        if self.offsets is not None:
+            g["means"] = g["means"] + self.offsets(g["means"], time)
+        return g
+
+    def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,
+                     detach_static: bool = False) -> dict[str, Tensor]:
+        """Activated Gaussians of the scene at normalised ``time`` (:meth:`set_at` of each set):
+        ``means`` (N, 3), ``quats`` (N, 4), ``scales`` (N, 3), ``opacities`` (N,), ``colors``
+        (N, 3), ``dynamic`` (N,) bool; static ones first."""
+        parts = []
+        if include_static:
+            static = self.set_at("static", time)
+            if detach_static:
+                static = {k: v.detach() for k, v in static.items()}
+            static["dynamic"] = torch.zeros(len(self.static), dtype=torch.bool, device=static["means"].device)
+            parts.append(static)
+        if include_dynamic and self.dynamic is not None and len(self.dynamic) > 0:
+            dynamic = self.set_at("dynamic", time)
+            dynamic["dynamic"] = torch.ones(len(self.dynamic), dtype=torch.bool, device=dynamic["means"].device)
+            parts.append(dynamic)
+        if not parts:
+            raise ValueError("nothing to render: no Gaussian set selected")
+        return {k: torch.cat([p[k] for p in parts], dim=0) for k in parts[0]}
+
+    def render(self, view: View, raster: RasterConfig | None = None, directions: Tensor | None = None,
+               keep: Tensor | None = None, dropout_scale: float = 1.0, include_static: bool = True,
+               include_dynamic: bool = True, detach_static: bool = False) -> dict[str, Any]:
+        """Render ``view``.
+
+        Args:
+            directions: (H, W, 3) world ray directions of the pixels (computed when None).
+            keep: (N,) bool Gaussian dropout mask over :meth:`gaussians_at`'s order (None = all),
+                the kept opacities multiplied by ``dropout_scale`` and clamped to 1.
+
+        Returns ``rgb`` (H, W, 3) composited with the sky, ``alpha`` (H, W), ``depth`` (H, W)
+        expected depth (0 where alpha is 0), ``dynamic`` (H, W) accumulated weight of the dynamic
+        Gaussians, ``sky`` (H, W, 3) the sky colour, and ``meta`` (the rasterizer's, with
+        ``means2d`` for densification) and ``n_static`` / ``n_dynamic``.
+        """
+        raster = raster or RasterConfig()
+        g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static)
+        device, dtype = g["means"].device, g["means"].dtype
+        opacities = g["opacities"]
+        if keep is not None:
+            opacities = torch.where(keep, (opacities * dropout_scale).clamp(max=1.0), torch.zeros_like(opacities))
+        features = torch.cat([g["colors"], g["dynamic"].to(dtype)[:, None]], dim=1)
+        viewmat = torch.as_tensor(view.world_to_camera, dtype=dtype, device=device)[None]
+        K = torch.as_tensor(rasterizer_intrinsics(view.K), dtype=dtype, device=device)[None]
+        out, alpha, meta = rasterize(g["means"], g["quats"], g["scales"], opacities, features, viewmat, K,
+                                     view.width, view.height, near_plane=NEAR_PLANE, far_plane=FAR_PLANE,
+                                     render_mode="RGB+ED", **raster.kwargs())
+        out, alpha = out[0], alpha[0, ..., 0]
+        if directions is None:
+            directions = camera_ray_directions(view.K, view.world_to_camera, view.height, view.width,
+                                               device=device, dtype=dtype)
+        sky = self.sky(directions)
+        rgb = out[..., :3] + (1.0 - alpha)[..., None] * sky
+        n_dynamic = int(g["dynamic"].sum())
+        return {"rgb": rgb, "alpha": alpha, "depth": out[..., 4], "dynamic": out[..., 3], "sky": sky,
+                "meta": meta, "n_static": len(g["dynamic"]) - n_dynamic, "n_dynamic": n_dynamic}
+
+    # ---- persistence
+    def payload(self) -> dict[str, Any]:
+        """Everything needed to rebuild the model (tensors on the CPU)."""
+        def params(s: GaussianSet | None):
+            return None if s is None else {k: v.detach().cpu() for k, v in s.params.items()}
+
+        return {
+            "static": params(self.static),
+            "dynamic": params(self.dynamic),
+            "field_config": None if self.field is None else to_dict(self.field.config),
+            "field": None if self.field is None else {k: v.cpu() for k, v in self.field.state_dict().items()},
+            "sky": self.sky.logits.detach().cpu(),
+            "offsets": None if self.offsets is None else {k: v.cpu() for k, v in self.offsets.state_dict().items()},
+            "baseline_config": to_dict(self.baseline),
+        }
+
+    @classmethod
+    def from_payload(cls, payload: dict[str, Any], device: torch.device | str = "cpu",
+                     dtype: torch.dtype = torch.float32) -> "SceneModel":
+        def gaussians(params):
+            return None if params is None else GaussianSet({k: v.to(device=device, dtype=dtype)
+                                                            for k, v in params.items()}).to(device)
+
+        sky_logits = payload["sky"]
+        sky = SkyEnvironment(int(sky_logits.shape[1]), int(sky_logits.shape[2]), device=device, dtype=dtype)
+        with torch.no_grad():
+            sky.logits.copy_(sky_logits.to(device=device, dtype=dtype))
+        field = None
+        if payload.get("field") is not None:
+            field = DeformationField(from_dict(FieldConfig, payload["field_config"])).to(device=device, dtype=dtype)
+            field.load_state_dict({k: v.to(device=device, dtype=dtype) for k, v in payload["field"].items()})
+        baseline = from_dict(BaselineConfig, payload.get("baseline_config") or {})
+        offsets = None
+        if payload.get("offsets") is not None:
+            offsets = OffsetField(baseline).to(device=device, dtype=dtype)
+            offsets.load_state_dict({k: v.to(device=device, dtype=dtype) for k, v in payload["offsets"].items()})
+        return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline)
+
+
+def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:
+    """A model saved as ``{"model": payload, ...}`` (``RUN/model.pt`` or a checkpoint)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no model file (has `radar4dgs train` finished?)")
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    if "model" not in saved:
+        raise ValueError(f"{path}: not a radar4dgs model file (no 'model' entry)")
+    return SceneModel.from_payload(saved["model"], device=device).eval()

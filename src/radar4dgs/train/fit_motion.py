@@ -1,0 +1,350 @@
+"""The standalone fit of the deformation field to a scene's prepared data (no Gaussians yet), and
+its evaluation against the scene's ground-truth scene flow.
+
+Data (from the prepared folder only, except with the "oracle" sources):
+- flow samples: the lifted pseudo scene-flow pairs ``(x_i, x_j)`` of ``<prepared>/flow`` (times
+  ``t_i, t_j``), supervising ``L_flow``;
+- radar samples: per frame pair (i, j), dynamic pixels of frame i lifted with frame i's depth
+  (a random subset: these stand in for the dynamic Gaussians of time i), each given the
+  compensated radial velocity of its nearest dynamic radar point of frame i (within a gate),
+  supervising ``L_rad`` over ``dt = timestamp_j - timestamp_i``.
+
+The field is optimised with Adam on ``L_flow + lambda L_rad`` (either term can be switched off),
+with minibatches drawn from all frames at once (per-point times). Canonical points are implicit:
+``warp(x, t_i, t_j) = D_tj(D_ti^-1(x))`` goes through ``x_c = D_ti^-1(x_ti)``.
+
+Evaluation: for every adjacent pair (i, i + 1), every gt-dynamic pixel with finite gt depth is
+lifted to its world point x at time t_i; its predicted flow ``D_t(i+1)(D_ti^-1(x)) - x`` is compared
+with ``gt/flow`` (end-point error, metres, pooled over all pixels of all pairs).
+
+Time coordinate: ``t = (timestamp - t_first) / (t_last - t_first)`` in [0, 1] (:func:`radar4dgs.io.scene.normalized_times`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import contextlib
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Literal, Mapping
+
+import numpy as np
+import torch
+
+from radar4dgs.config import to_dict
+from radar4dgs.io.scene import normalized_times
+from radar4dgs.motion.association import associate_velocities, load_radar_dynamics
+from radar4dgs.model.field import DeformationField, FieldConfig
+from radar4dgs.motion.flow import (FlowConfig, backproject, frame_pairs, load_depth, load_flow_pairs, load_mask,
+                                   prepare_flow)
+from radar4dgs.metrics.losses import flow_loss, radar_loss
+from radar4dgs.train.config import FitConfig, MotionConfig
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+
+
+@dataclass
+class FlowSamples:
+    """Pseudo scene-flow pairs: x_i (N, 3) at t_i (N,) and x_j (N, 3) at t_j (N,)."""
+
+    x_i: np.ndarray
+    x_j: np.ndarray
+    t_i: np.ndarray
+    t_j: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.x_i))
+
+
+@dataclass
+class RadarSamples:
+    """Radar-supervised points: x (N, 3) at t_i (N,), displaced to t_j (N,) over dt (N,) seconds;
+    radar centre (N, 3); associated compensated radial velocity v_r (N,)."""
+
+    x: np.ndarray
+    t_i: np.ndarray
+    t_j: np.ndarray
+    dt: np.ndarray
+    centre: np.ndarray
+    v_r: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.x))
+
+
+def flow_samples_from_pairs(pairs: list[dict[str, np.ndarray]], times: np.ndarray) -> FlowSamples:
+    """Concatenate the ``<prepared>/flow`` pairs (see :func:`radar4dgs.motion.flow.load_flow_pairs`)."""
+    x_i, x_j, t_i, t_j = [], [], [], []
+    for pair in pairs:
+        n = len(pair["points_i"])
+        x_i.append(pair["points_i"].astype(np.float64))
+        x_j.append(pair["points_j"].astype(np.float64))
+        t_i.append(np.full(n, times[int(pair["index_i"])]))
+        t_j.append(np.full(n, times[int(pair["index_j"])]))
+    if not x_i:
+        empty = np.zeros((0, 3))
+        return FlowSamples(empty, empty, np.zeros(0), np.zeros(0))
+    return FlowSamples(np.concatenate(x_i), np.concatenate(x_j), np.concatenate(t_i), np.concatenate(t_j))
+
+
+def dynamic_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_to_cam: np.ndarray,
+                   limit: int, rng: np.random.Generator) -> np.ndarray:
+    """(M, 3) world points of at most ``limit`` (0 = all) random dynamic pixels with finite depth."""
+    valid = mask & np.isfinite(depth) & (depth > 0)
+    rows, cols = np.nonzero(valid)
+    if limit and len(rows) > limit:
+        chosen = rng.choice(len(rows), size=limit, replace=False)
+        rows, cols = rows[chosen], cols[chosen]
+    pixels = np.stack([cols, rows], axis=1).astype(np.float64)
+    return backproject(pixels, depth[rows, cols], K, world_to_cam)
+
+
+def collect_radar_samples(scene, prepared_dir: str | Path | None, flow_config: FlowConfig, fit: FitConfig,
+                          times: np.ndarray) -> tuple[RadarSamples, dict]:
+    """Radar-supervised points of every frame pair (:func:`frame_pairs`), and association stats."""
+    rng = np.random.default_rng(fit.seed)
+    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "t_i", "t_j", "dt", "centre", "v_r")}
+    candidates = matched_total = radar_total = 0
+    for i, j in frame_pairs(scene, flow_config.skip_test_frames):
+        depth = load_depth(scene, i, flow_config.depth_source, prepared_dir)
+        mask = load_mask(scene, i, flow_config.mask_source, prepared_dir)
+        points = dynamic_points(depth, mask, scene.camera.K, scene.world_to_camera(i),
+                                fit.radar_points_per_frame, rng)
+        radar = load_radar_dynamics(scene, i, fit.radar_source, prepared_dir)
+        v_r = associate_velocities(points, radar, fit.radar_gate)
+        candidates += len(points)
+        matched_total += int(np.isfinite(v_r).sum())
+        radar_total += len(radar)
+        if fit.radar_returns_as_points:
+            points, v_r = np.concatenate([points, radar.points]), np.concatenate([v_r, radar.v_r_comp])
+        keep = np.isfinite(v_r)
+        n = int(keep.sum())
+        columns["x"].append(points[keep])
+        columns["v_r"].append(v_r[keep])
+        columns["t_i"].append(np.full(n, times[i]))
+        columns["t_j"].append(np.full(n, times[j]))
+        columns["dt"].append(np.full(n, scene.frames[j].timestamp - scene.frames[i].timestamp))
+        columns["centre"].append(np.repeat(radar.centre[None], n, axis=0))
+    joined = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("x", "centre") else (0,)))
+              for k, v in columns.items()}
+    stats = {"radar_candidates": candidates, "radar_matched": matched_total,
+             "radar_dynamic_points": radar_total,
+             "radar_returns_supervised": radar_total if fit.radar_returns_as_points else 0,
+             "radar_matched_fraction": matched_total / candidates if candidates else None}
+    return RadarSamples(**joined), stats
+
+
+# --------------------------------------------------------------------------------------------
+# Optimisation
+
+
+def _torch_dtype(name: str) -> torch.dtype:
+    return {"float32": torch.float32, "float64": torch.float64}[name]
+
+
+def fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
+              fit: FitConfig, progress: bool = False) -> tuple[DeformationField, list[dict]]:
+    """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad``.
+
+    Either sample set may be None or empty (that term is off). The normalisation is fitted to
+    every sample point. Returns the field (eval mode) and a loss history (every 50 iterations).
+    """
+    with torch_threads(fit.threads):
+        return _fit_field(flow, radar, field_config, fit, progress)
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int):
+    """Run the block with ``threads`` torch intra-op threads (0 = unchanged), restoring the setting
+    after: torch's thread count is process-wide, so a fit must not leave it changed."""
+    previous = torch.get_num_threads()
+    if threads > 0:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
+               fit: FitConfig, progress: bool) -> tuple[DeformationField, list[dict]]:
+    use_flow = flow is not None and len(flow) > 0
+    use_radar = radar is not None and len(radar) > 0
+    if not (use_flow or use_radar):
+        raise ValueError("nothing to fit: no flow pairs and no radar-associated points")
+    device, dtype = torch.device(fit.device), _torch_dtype(fit.dtype)
+    generator = torch.Generator().manual_seed(fit.seed)
+    torch.manual_seed(fit.seed)  # parameter initialisation of the field's hidden layers
+    deformation = DeformationField(field_config).to(device=device, dtype=dtype)
+    region = ([flow.x_i, flow.x_j] if use_flow else []) + ([radar.x] if use_radar else [])
+    deformation.fit_normalization(np.concatenate(region))
+
+    def tensor(array: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(array, dtype=dtype, device=device)
+
+    if use_flow:
+        f_xi, f_xj, f_ti, f_tj = (tensor(a) for a in (flow.x_i, flow.x_j, flow.t_i, flow.t_j))
+    if use_radar:
+        r_x, r_ti, r_tj, r_dt, r_c, r_v = (tensor(a) for a in (radar.x, radar.t_i, radar.t_j, radar.dt,
+                                                              radar.centre, radar.v_r))
+    optimizer = torch.optim.Adam(deformation.parameters(), lr=fit.learning_rate)
+    gamma = fit.final_learning_rate_ratio ** (1.0 / max(fit.iterations, 1))
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
+    history: list[dict] = []
+    steps = range(fit.iterations)
+    if progress:
+        from tqdm import tqdm
+
+        steps = tqdm(steps, desc="fit-motion", unit="it")
+    for step in steps:
+        losses: dict[str, torch.Tensor] = {}
+        if use_flow:
+            index = torch.randint(len(flow), (min(fit.batch_size, len(flow)),), generator=generator).to(device)
+            losses["flow"] = flow_loss(deformation, f_xi[index], f_xj[index], f_ti[index], f_tj[index])
+        if use_radar:
+            index = torch.randint(len(radar), (min(fit.batch_size, len(radar)),), generator=generator).to(device)
+            losses["radar"] = radar_loss(deformation, r_x[index], r_ti[index], r_tj[index], r_dt[index],
+                                         r_c[index], r_v[index])
+        total = losses.get("flow", 0.0) + fit.radar_weight * losses.get("radar", 0.0)
+        if not torch.isfinite(total):
+            raise FloatingPointError(f"non-finite loss at iteration {step}: "
+                                     f"{ {k: float(v) for k, v in losses.items()} }")
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        optimizer.step()
+        scheduler.step()
+        if step % 50 == 0 or step == fit.iterations - 1:
+            history.append({"iteration": step, "total": float(total.detach()),
+                            **{k: float(v.detach()) for k, v in losses.items()}})
+    return deformation.eval(), history
+
+
+# --------------------------------------------------------------------------------------------
+# Evaluation
+
+
+def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, chunk: int = 65536) -> dict:
+    """End-point error of the field's scene flow on every gt-dynamic pixel of every adjacent pair.
+
+    Returns ``epe`` (m, mean over pixels of all pairs), ``epe_train_pairs`` (both frames are
+    training frames), ``epe_held_out_pairs`` (a test frame involved), ``zero_motion_epe`` (mean
+    |gt flow|, the error of a field that does not move), ``roundtrip_max`` (m, max
+    |D^-1(D(x)) - x| on the evaluated points), ``points`` and ``pairs``.
+    """
+    parameter = next(deformation.parameters())
+    device, dtype = parameter.device, parameter.dtype
+    test = set(scene.test_indices)
+    errors, zero, held_out, roundtrip = [], [], [], 0.0
+    for i in range(len(scene) - 1):
+        depth = scene.load_optional("gt/depth", i).astype(np.float64)
+        mask = scene.load_optional("gt/dynamic_mask", i) & np.isfinite(depth) & (depth > 0)
+        if not mask.any():
+            continue
+        motion = scene.load_optional("gt/flow", i).astype(np.float64)[mask]
+        rows, cols = np.nonzero(mask)
+        x = backproject(np.stack([cols, rows], axis=1).astype(np.float64), depth[rows, cols],
+                        scene.camera.K, scene.world_to_camera(i))
+        predicted = []
+        with torch.no_grad():
+            for start in range(0, len(x), chunk):
+                xt = torch.as_tensor(x[start:start + chunk], dtype=dtype, device=device)
+                canonical = deformation.inverse(xt, float(times[i]))
+                moved = deformation.forward(canonical, float(times[i + 1]))
+                back = deformation.inverse(deformation.forward(canonical, float(times[i])), float(times[i]))
+                roundtrip = max(roundtrip, float((back - canonical).abs().max()))
+                predicted.append((moved - xt).double().cpu().numpy())
+        error = np.linalg.norm(np.concatenate(predicted) - motion, axis=1)
+        errors.append(error)
+        zero.append(np.linalg.norm(motion, axis=1))
+        held_out.append(np.full(len(error), i in test or (i + 1) in test))
+    if not errors:
+        return {"epe": None, "epe_train_pairs": None, "epe_held_out_pairs": None, "zero_motion_epe": None,
+                "roundtrip_max": None, "points": 0, "pairs": 0}
+    e, z, h = np.concatenate(errors), np.concatenate(zero), np.concatenate(held_out)
+    return {"epe": float(e.mean()),
+            "epe_train_pairs": float(e[~h].mean()) if (~h).any() else None,
+            "epe_held_out_pairs": float(e[h].mean()) if h.any() else None,
+            "zero_motion_epe": float(z.mean()), "roundtrip_max": roundtrip,
+            "points": int(len(e)), "pairs": len(errors)}
+
+
+# --------------------------------------------------------------------------------------------
+# Scene level
+
+
+def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None, use_flow: bool = True,
+            use_radar: bool = True, recompute_flow: bool = False, evaluate: bool = True,
+            progress: bool = False) -> tuple[DeformationField, dict]:
+    """Fit the field to a scene's prepared data and (with gt/) evaluate it.
+
+    ``<prepared>/flow`` is computed with ``config.flow`` when missing (or ``recompute_flow``) and
+    ``use_flow`` is on. Returns the field and a JSON-ready result dict (config, data counts, loss
+    history, timings, and the :func:`evaluate_sceneflow` metrics under ``"sceneflow"``).
+    """
+    config = config or MotionConfig()
+    prepared = Path(prepared_dir)
+    times = normalized_times(scene)
+    result: dict[str, Any] = {"scene": str(scene.root), "prepared": str(prepared), "use_flow": use_flow,
+                              "use_radar": use_radar, "config": to_dict(config)}
+    started = time.perf_counter()
+    flow_samples = radar_samples = None
+    if use_flow:
+        if recompute_flow or not (prepared / "flow").is_dir():
+            flow_started = time.perf_counter()
+            prepare_flow(scene, prepared, config.flow, progress=progress)
+            result["flow_prepare_seconds"] = time.perf_counter() - flow_started
+        flow_samples = flow_samples_from_pairs(load_flow_pairs(prepared), times)
+        result["flow_pairs"] = len(flow_samples)
+    if use_radar:
+        radar_samples, stats = collect_radar_samples(scene, prepared, config.flow, config.fit, times)
+        result.update(stats)
+    data_seconds = time.perf_counter() - started
+    fit_started = time.perf_counter()
+    deformation, history = fit_field(flow_samples, radar_samples, config.field, config.fit, progress)
+    result["fit_seconds"] = time.perf_counter() - fit_started
+    result["data_seconds"] = data_seconds
+    result["history"] = history
+    if evaluate:
+        eval_started = time.perf_counter()
+        with torch_threads(config.fit.threads):
+            result["sceneflow"] = evaluate_sceneflow(deformation, scene, times)
+        result["eval_seconds"] = time.perf_counter() - eval_started
+    return deformation, result
+
+
+def save_field(deformation: DeformationField, path: str | Path) -> Path:
+    """Save the field's state dict and its :class:`FieldConfig` (atomically) to ``path``."""
+    from radar4dgs.io.atomic import atomic_save_torch
+
+    atomic_save_torch(path, {"field_config": to_dict(deformation.config), "state_dict": deformation.state_dict()})
+    return Path(path)
+
+
+def write_motion_outputs(out: str | Path, deformation: DeformationField, result: dict,
+                         config: MotionConfig) -> Path:
+    """Write a fit's ``config.json``, ``field.pt`` and ``results.json`` into ``out`` (atomically each)."""
+    from radar4dgs.config import save_config
+    from radar4dgs.io.atomic import atomic_write_json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    save_config(config, out / "config.json")
+    save_field(deformation, out / "field.pt")
+    atomic_write_json(out / "results.json", result)
+    return out
+
+
+def load_field(path: str | Path, device: str = "cpu") -> DeformationField:
+    """A field saved by :func:`save_field`."""
+    from radar4dgs.config import from_dict
+
+    payload = torch.load(Path(path), map_location=device, weights_only=True)
+    deformation = DeformationField(from_dict(FieldConfig, payload["field_config"]))
+    state = payload["state_dict"]
+    deformation.to(device=device, dtype=state["centre"].dtype)
+    deformation.load_state_dict(state)
+    return deformation.eval()
