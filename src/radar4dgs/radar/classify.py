@@ -7,7 +7,8 @@ from typing import Any
 import numpy as np
 
 from radar4dgs.radar.config import RadarConfig
-from radar4dgs.radar.ego_motion import EgoMotion, _as_points, angle_jacobians, band_sq, unit_directions
+from radar4dgs.radar.doppler import angle_jacobians, band_sq, unit_directions
+from radar4dgs.radar.ego_motion import EgoMotion, _as_points
 
 
 def dynamic_threshold(d: np.ndarray, ego: EgoMotion, sigma: float) -> np.ndarray:
