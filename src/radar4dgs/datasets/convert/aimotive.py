@@ -34,14 +34,14 @@ from typing import Any
 import cv2
 import numpy as np
 import tyro
-from tqdm import tqdm
 
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError, SceneWriter
+from radar4dgs.datasets.convert.common import fit_scans, scaled_intrinsics, transform_points, write_scene
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
 from radar4dgs.datasets.synth.camera import CV_TO_EGO
 from radar4dgs.datasets.synth.radar import spherical_to_xyz
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.poses import ego_rates_from_radar, integrate_poses
-from radar4dgs.radar.process import fit_frames, smooth_velocities
+from radar4dgs.radar.process import smooth_velocities
 
 CAMERA = "F_MIDLONGRANGECAM_CL"
 RADAR = "F_LRR_C"
@@ -132,19 +132,127 @@ def box_labels(points_body: np.ndarray, boxes: list[dict], ego_velocity: np.ndar
     return labels
 
 
-def scaled_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
-    """K for an image resized by ``sx`` x ``sy`` (pixel centres at integer coordinates)."""
-    out = K.copy()
-    out[0, 0] *= sx
-    out[1, 1] *= sy
-    out[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
-    out[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-    return out
-
-
 def _frame_ids(folder: Path, prefix: str, suffix: str) -> list[str]:
     pattern = re.compile(rf"^{re.escape(prefix)}(\d+){re.escape(suffix)}$")
     return sorted(m.group(1) for p in folder.iterdir() if (m := pattern.match(p.name)))
+
+
+@dataclass(frozen=True)
+class _Sequence:
+    """The checked files of one aiMotive sequence: calibration, sensor folders and frame ids."""
+
+    calib: dict
+    calib_path: Path
+    cam_dir: Path
+    radar_dir: Path
+    box_dir: Path
+    ids: list[str]
+
+
+def _read_sequence(src: Path) -> _Sequence:
+    """The calibration and the frame ids of the sequence at ``src``; every frame's files must exist."""
+    calib_path = src / "sensor" / "calibration" / "calibration.json"
+    calib = _read_json(calib_path)
+    for sensor in (CAMERA, RADAR):
+        if sensor not in calib:
+            raise SceneError(calib_path, f"no entry for sensor {sensor}")
+    cam_dir = _need(src / "sensor" / "camera" / CAMERA, "camera images")
+    radar_dir = _need(src / "sensor" / "radar" / RADAR, "radar targets")
+    box_dir = _need(src / "dynamic" / "box" / "3d_body", "3D boxes, the only source of timestamps")
+
+    ids = _frame_ids(radar_dir, f"{RADAR}_", ".json")
+    if not ids:
+        raise SceneError(radar_dir, f"no {RADAR}_<frame>.json files")
+    for fid in ids:
+        _need(cam_dir / f"{CAMERA}_{fid}.jpg", f"camera image of frame {fid}")
+        _need(box_dir / f"frame_{fid}.json", f"boxes and timestamp of frame {fid}")
+    return _Sequence(calib, calib_path, cam_dir, radar_dir, box_dir, ids)
+
+
+@dataclass(frozen=True)
+class _Undistorter:
+    """Undistorts the front camera's images to ``getOptimalNewCameraMatrix`` (alpha = 0) and resizes
+    them; ``K`` (3, 3) is the camera matrix of the output images."""
+
+    size: tuple[int, int]
+    size_out: tuple[int, int]
+    K: np.ndarray
+    maps: tuple[np.ndarray, np.ndarray]
+
+    @classmethod
+    def build(cls, cam: dict, scale: float) -> "_Undistorter":
+        """From the camera's calibration entry; ``scale`` in (0, 1] resizes after undistortion."""
+        width, height = (int(v) for v in cam["image_resolution_px"])
+        fx, fy = cam["focal_length_px"]
+        cx, cy = cam["principal_point_px"]
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        dist = np.asarray(cam.get("distortion_coeffs", [0.0] * 5), dtype=np.float64)
+        new_K, _ = cv2.getOptimalNewCameraMatrix(K, dist, (width, height), alpha=0)
+        map_x, map_y = cv2.initUndistortRectifyMap(K, dist, None, new_K, (width, height), cv2.CV_32FC1)
+        out_w, out_h = int(round(width * scale)), int(round(height * scale))
+        K_out = scaled_intrinsics(new_K, out_w / width, out_h / height)
+        return cls((width, height), (out_w, out_h), K_out, (map_x, map_y))
+
+    def __call__(self, image_path: Path) -> np.ndarray:
+        """(H, W, 3) uint8 RGB output image from the camera image at ``image_path``."""
+        width, height = self.size
+        bgr = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise SceneError(image_path, "unreadable image")
+        if bgr.shape[:2] != (height, width):
+            raise SceneError(image_path, f"image is {bgr.shape[1]}x{bgr.shape[0]}, calibration says "
+                                         f"{width}x{height}")
+        rgb = cv2.cvtColor(cv2.remap(bgr, self.maps[0], self.maps[1], cv2.INTER_LINEAR), cv2.COLOR_BGR2RGB)
+        if self.size_out != self.size:
+            rgb = cv2.resize(rgb, self.size_out, interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(rgb)
+
+
+def _read_frames(seq: _Sequence) -> tuple[list[np.ndarray], list[list[dict]], np.ndarray]:
+    """Per frame: the radar scan (N, 6), the boxes, and the time (s); (T,) times checked to be
+    plausible nanosecond stamps in order."""
+    scans, boxes, stamps = [], [], []
+    for fid in seq.ids:
+        path = seq.radar_dir / f"{RADAR}_{fid}.json"
+        scans.append(radar_points(_read_json(path).get("targets", []), path))
+        box_path = seq.box_dir / f"frame_{fid}.json"
+        box_json = _read_json(box_path)
+        if "Timestamp" not in box_json:
+            raise SceneError(box_path, "no 'Timestamp'")
+        stamps.append(int(box_json["Timestamp"]) * 1e-9)
+        boxes.append(box_json.get("CapturedObjects", []))
+    stamps = np.array(stamps)
+    dt = np.diff(stamps)
+    if len(dt) and (np.any(dt <= 0) or np.median(dt) > 1.0 or np.median(dt) < 1e-3):
+        raise SceneError(seq.box_dir, f"Timestamps read as ns give frame gaps of {np.median(dt):.3g} s "
+                                      f"(expected 0.01-1 s); unit or order is wrong")
+    return scans, boxes, stamps
+
+
+def _radar_poses(stamps: np.ndarray, scans: list[np.ndarray], config: RadarConfig, radar_to_ego: np.ndarray,
+                 align_heading: bool) -> tuple[list, np.ndarray, np.ndarray, dict, np.ndarray]:
+    """Poses from the radar's ego-motion: the per-frame fits, ego velocities (T, 3), yaw rates (T,),
+    the pose model's report and the integrated (T, 4, 4) ego -> world poses."""
+    fits = fit_scans(scans, config, radar_to_ego)
+    velocities = smooth_velocities(stamps, fits, config)
+    ego_v, yaw, pose_info = ego_rates_from_radar(stamps, velocities, radar_to_ego, yaw_rate=True,
+                                                 align_heading=align_heading)
+    return fits, ego_v, yaw, pose_info, integrate_poses(stamps, ego_v, yaw)
+
+
+def _source(src: Path, scale: float, pose_info: dict, fits: list) -> dict:
+    """The scene's ``source`` record."""
+    return {
+        "dataset": "aimotive", "sensors": {"camera": CAMERA, "radar": RADAR}, "path": str(src),
+        "licence": "CC BY-NC-SA 4.0 (aiMotive dataset)",
+        "poses": "estimated: no ego-motion file; per-frame radar Doppler ego-motion (RANSAC, median "
+                 "smoothed) integrated with the planar non-holonomic lever-arm model "
+                 "(radar4dgs.radar.poses)",
+        "poses_from_radar": True, "pose_model": pose_info,
+        "radar_fit_ok_frames": int(sum(f.ok for f in fits)),
+        "images": f"undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0) and resized x{scale}",
+        "timestamps": "box files' Timestamp, nanoseconds",
+    }
 
 
 def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overwrite: bool = False,
@@ -165,94 +273,30 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
     if not 0 < scale <= 1:
         raise ValueError(f"--scale must be in (0, 1], got {scale}")
     config = radar_config or aimotive_radar_config()
-    calib_path = src / "sensor" / "calibration" / "calibration.json"
-    calib = _read_json(calib_path)
-    for sensor in (CAMERA, RADAR):
-        if sensor not in calib:
-            raise SceneError(calib_path, f"no entry for sensor {sensor}")
-    cam = calib[CAMERA]
-    cam_dir = _need(src / "sensor" / "camera" / CAMERA, "camera images")
-    radar_dir = _need(src / "sensor" / "radar" / RADAR, "radar targets")
-    box_dir = _need(src / "dynamic" / "box" / "3d_body", "3D boxes, the only source of timestamps")
-
-    ids = _frame_ids(radar_dir, f"{RADAR}_", ".json")
-    if not ids:
-        raise SceneError(radar_dir, f"no {RADAR}_<frame>.json files")
-    for fid in ids:
-        _need(cam_dir / f"{CAMERA}_{fid}.jpg", f"camera image of frame {fid}")
-        _need(box_dir / f"frame_{fid}.json", f"boxes and timestamp of frame {fid}")
+    seq = _read_sequence(src)
 
     # ---- calibration
-    width, height = (int(v) for v in cam["image_resolution_px"])
-    fx, fy = cam["focal_length_px"]
-    cx, cy = cam["principal_point_px"]
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    dist = np.asarray(cam.get("distortion_coeffs", [0.0] * 5), dtype=np.float64)
-    new_K, _ = cv2.getOptimalNewCameraMatrix(K, dist, (width, height), alpha=0)
-    map_x, map_y = cv2.initUndistortRectifyMap(K, dist, None, new_K, (width, height), cv2.CV_32FC1)
-    out_w, out_h = int(round(width * scale)), int(round(height * scale))
-    K_out = scaled_intrinsics(new_K, out_w / width, out_h / height)
-    cam_to_ego = opencv_axes(np.asarray(cam["RT_body_from_sensor"], dtype=np.float64), calib_path)
-    radar_to_ego = np.asarray(calib[RADAR]["RT_body_from_sensor"], dtype=np.float64)
+    cam = seq.calib[CAMERA]
+    undistort = _Undistorter.build(cam, scale)
+    cam_to_ego = opencv_axes(np.asarray(cam["RT_body_from_sensor"], dtype=np.float64), seq.calib_path)
+    radar_to_ego = np.asarray(seq.calib[RADAR]["RT_body_from_sensor"], dtype=np.float64)
 
-    # ---- radar, boxes, timestamps
-    scans, boxes, stamps = [], [], []
-    for fid in ids:
-        path = radar_dir / f"{RADAR}_{fid}.json"
-        scans.append(radar_points(_read_json(path).get("targets", []), path))
-        box_path = box_dir / f"frame_{fid}.json"
-        box_json = _read_json(box_path)
-        if "Timestamp" not in box_json:
-            raise SceneError(box_path, "no 'Timestamp'")
-        stamps.append(int(box_json["Timestamp"]) * 1e-9)
-        boxes.append(box_json.get("CapturedObjects", []))
-    stamps = np.array(stamps)
-    dt = np.diff(stamps)
-    if len(dt) and (np.any(dt <= 0) or np.median(dt) > 1.0 or np.median(dt) < 1e-3):
-        raise SceneError(box_dir, f"Timestamps read as ns give frame gaps of {np.median(dt):.3g} s "
-                                  f"(expected 0.01-1 s); unit or order is wrong")
+    # ---- radar, boxes, timestamps, and poses from the radar's ego-motion
+    scans, boxes, stamps = _read_frames(seq)
+    fits, ego_v, yaw, pose_info, poses = _radar_poses(stamps, scans, config, radar_to_ego, align_heading)
 
-    # ---- poses from the radar's ego-motion
-    fits = fit_frames([(s[:, :3].astype(np.float64), s[:, 3].astype(np.float64)) for s in scans], config,
-                      radar_to_ego=radar_to_ego)
-    velocities = smooth_velocities(stamps, fits, config)
-    ego_v, yaw, pose_info = ego_rates_from_radar(stamps, velocities, radar_to_ego, yaw_rate=True,
-                                                 align_heading=align_heading)
-    poses = integrate_poses(stamps, ego_v, yaw)
+    frames = [Frame(name=fid, timestamp=float(stamps[i]), ego_to_world=poses[i],
+                    radar_timestamp=float(stamps[i]), radar_ego_to_world=poses[i])
+              for i, fid in enumerate(seq.ids)]
 
-    source = {
-        "dataset": "aimotive", "sensors": {"camera": CAMERA, "radar": RADAR}, "path": str(src),
-        "licence": "CC BY-NC-SA 4.0 (aiMotive dataset)",
-        "poses": "estimated: no ego-motion file; per-frame radar Doppler ego-motion (RANSAC, median "
-                 "smoothed) integrated with the planar non-holonomic lever-arm model "
-                 "(radar4dgs.radar.poses)",
-        "poses_from_radar": True, "pose_model": pose_info,
-        "radar_fit_ok_frames": int(sum(f.ok for f in fits)),
-        "images": f"undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0) and resized x{scale}",
-        "timestamps": "box files' Timestamp, nanoseconds",
-    }
+    def frame_files(i: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        rgb = undistort(seq.cam_dir / f"{CAMERA}_{seq.ids[i]}.jpg")
+        points_body = transform_points(radar_to_ego, scans[i][:, :3])
+        return rgb, {"gt_radar_labels": box_labels(points_body, boxes[i], ego_v[i], float(yaw[i]))}
 
-    frames_iter = tqdm(range(len(ids)), desc="aimotive", unit="frame", disable=not progress)
-    with SceneWriter(out, overwrite=overwrite) as writer:
-        for i in frames_iter:
-            fid = ids[i]
-            image_path = cam_dir / f"{CAMERA}_{fid}.jpg"
-            bgr = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise SceneError(image_path, "unreadable image")
-            if bgr.shape[:2] != (height, width):
-                raise SceneError(image_path, f"image is {bgr.shape[1]}x{bgr.shape[0]}, calibration says "
-                                             f"{width}x{height}")
-            rgb = cv2.cvtColor(cv2.remap(bgr, map_x, map_y, cv2.INTER_LINEAR), cv2.COLOR_BGR2RGB)
-            if (out_w, out_h) != (width, height):
-                rgb = cv2.resize(rgb, (out_w, out_h), interpolation=cv2.INTER_AREA)
-            points_body = scans[i][:, :3].astype(np.float64) @ radar_to_ego[:3, :3].T + radar_to_ego[:3, 3]
-            labels = box_labels(points_body, boxes[i], ego_v[i], float(yaw[i]))
-            frame = Frame(name=fid, timestamp=float(stamps[i]), ego_to_world=poses[i],
-                          radar_timestamp=float(stamps[i]), radar_ego_to_world=poses[i])
-            writer.add_frame(frame, np.ascontiguousarray(rgb), scans[i], gt_radar_labels=labels)
-        writer.finish(f"aimotive-{src.name}", Camera(out_w, out_h, K_out, cam_to_ego),
-                      RadarSpec(radar_to_ego, RADAR_FIELDS), source=source)
+    camera = Camera(undistort.size_out[0], undistort.size_out[1], undistort.K, cam_to_ego)
+    write_scene(out, f"aimotive-{src.name}", camera, RadarSpec(radar_to_ego, RADAR_FIELDS),
+                _source(src, scale, pose_info, fits), frames, scans, frame_files, overwrite, progress, "aimotive")
     return out
 
 

@@ -57,20 +57,19 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
 import tyro
-from tqdm import tqdm
 
-from radar4dgs.datasets.convert.aimotive import scaled_intrinsics
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, Scene, SceneError, SceneWriter, _rigid
-from radar4dgs.radar.config import RadarConfig
-from radar4dgs.radar.poses import expected_radar_velocity
-from radar4dgs.radar.process import fit_frames
+from radar4dgs.datasets.convert.common import (DopplerSign, ImageRectifier, apply_doppler_sign, doppler_sign,
+                                               keep_rows, radar_row_counts, read_first_image, read_lidar_scan,
+                                               read_radar_scans, rebase, write_scene)
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
+from radar4dgs.io.scene_read import _rigid
 
 CAMERA = "camera_front"
 RADAR = "radar_front"
@@ -80,131 +79,6 @@ RADAR_FIELDS = ("x", "y", "z", "v_r", "power", "snr", "motion_state")
 # Raw column index of each stored field (raw: x y z v_r power motion_state SNR valid_flag).
 _RAW_INDEX = (0, 1, 2, 3, 4, 6, 5)
 _VALID_COLUMN = 7
-DopplerSign = Literal["auto", "+1", "-1"]
-# The sign check needs motion: below this speed (m/s) the Doppler of static points is noise.
-SIGN_MIN_SPEED = 1.0
-# The Doppler fit and the poses must point the same way (or exactly opposite) within ~60 deg.
-SIGN_MIN_COSINE = 0.5
-
-
-# --------------------------------------------------------------------------------------------
-# Helpers shared with the View-of-Delft converter
-
-
-@dataclass(frozen=True)
-class ImageRectifier:
-    """Undistorts (OpenCV) and resizes the images of one camera.
-
-    ``K`` (3, 3) is the camera matrix of the output images. Undistortion maps to the matrix of
-    ``getOptimalNewCameraMatrix`` with alpha = 0 (every output pixel valid, no black borders); it
-    is skipped when every distortion coefficient is zero.
-    """
-
-    size_in: tuple[int, int]
-    size_out: tuple[int, int]
-    K: np.ndarray
-    maps: tuple[np.ndarray, np.ndarray] | None
-
-    @classmethod
-    def build(cls, K: np.ndarray, distortion: Sequence[float] | None, size_in: tuple[int, int],
-              size_out: tuple[int, int] | None = None) -> "ImageRectifier":
-        """``K`` (3, 3) of the raw images, ``size_in``/``size_out`` (width, height); ``size_out``
-        None keeps the size."""
-        K = np.asarray(K, dtype=np.float64)
-        dist = np.zeros(5) if distortion is None else np.asarray(distortion, dtype=np.float64).ravel()
-        size_out = tuple(size_out or size_in)
-        maps = None
-        K_und = K
-        if np.any(dist != 0):
-            K_und, _ = cv2.getOptimalNewCameraMatrix(K, dist, size_in, alpha=0)
-            maps = cv2.initUndistortRectifyMap(K, dist, None, K_und, size_in, cv2.CV_32FC1)
-        K_out = scaled_intrinsics(K_und, size_out[0] / size_in[0], size_out[1] / size_in[1])
-        return cls(tuple(size_in), size_out, K_out, maps)
-
-    def __call__(self, bgr: np.ndarray | None, path: Path) -> np.ndarray:
-        """(H, W, 3) uint8 RGB output image from a raw (H_in, W_in, 3) BGR image read from ``path``."""
-        if bgr is None:
-            raise SceneError(path, "unreadable image")
-        if (bgr.shape[1], bgr.shape[0]) != self.size_in:
-            raise SceneError(path, f"image is {bgr.shape[1]}x{bgr.shape[0]}, the first converted image is "
-                                   f"{self.size_in[0]}x{self.size_in[1]}")
-        if self.maps is not None:
-            bgr = cv2.remap(bgr, self.maps[0], self.maps[1], cv2.INTER_LINEAR)
-        if self.size_out != self.size_in:
-            shrink = self.size_out[0] * self.size_out[1] < self.size_in[0] * self.size_in[1]
-            bgr = cv2.resize(bgr, self.size_out, interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-        return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-
-
-def doppler_sign(scans: Sequence[np.ndarray], frames: Sequence[Frame], camera: Camera, radar: RadarSpec,
-                 where: Path, mode: DopplerSign = "auto", config: RadarConfig | None = None) -> tuple[int, dict]:
-    """The factor (+1 or -1) that turns a dataset's raw Doppler into ``v_r`` (positive = receding),
-    and a JSON-ready report of the evidence.
-
-    ``scans`` are (N, >=4) arrays whose first four columns are x, y, z (radar frame) and the raw
-    Doppler; ``frames`` carry the poses (``radar_ego_to_world`` at ``radar_timestamp``). ``auto``
-    fits the radar's velocity to each scan (RANSAC, :func:`radar4dgs.radar.process.fit_frames`)
-    and compares it with the velocity the poses imply
-    (:func:`radar4dgs.radar.poses.expected_radar_velocity`): a static point seen from a radar
-    moving at ``v_s`` has ``v_r = -d . v_s``, so with the wrong sign the fit points backwards.
-    Frames slower than 1 m/s are not used; with none left the sign stays +1 and the report says
-    it was not checked. A median cosine between -0.5 and 0.5 means the Doppler and the poses do
-    not agree in either sign: a :class:`SceneError` naming ``where``.
-    """
-    if mode != "auto":
-        return int(mode), {"mode": mode, "checked": False, "sign": int(mode)}
-    # Only the poses are evidence: an IMU velocity of unknown convention would beg the question.
-    pose_frames = tuple(replace(f, ego_velocity=None) for f in frames)
-    expected, source = expected_radar_velocity(Scene(where, "doppler-check", camera, radar, pose_frames))
-    if expected is None:
-        return 1, {"mode": "auto", "checked": False, "sign": 1, "reason": source}
-    config = config or RadarConfig()
-    fits = fit_frames([(s[:, :3].astype(np.float64), s[:, 3].astype(np.float64)) for s in scans], config,
-                      radar_to_ego=radar.radar_to_ego)
-    cosines = []
-    for fit, v_pose in zip(fits, expected):
-        speed = float(np.linalg.norm(v_pose))
-        if fit.ok and not fit.standstill and speed > SIGN_MIN_SPEED and fit.speed > SIGN_MIN_SPEED:
-            cosines.append(float(fit.velocity @ v_pose) / (fit.speed * speed))
-    if not cosines:
-        return 1, {"mode": "auto", "checked": False, "sign": 1,
-                   "reason": f"no frame where the poses and the Doppler fit both move faster than "
-                             f"{SIGN_MIN_SPEED} m/s"}
-    median = float(np.median(cosines))
-    if abs(median) < SIGN_MIN_COSINE:
-        raise SceneError(where, f"the radar's Doppler ego-motion and the poses disagree in either sign "
-                                f"(median cosine {median:.2f} over {len(cosines)} frames); check the radar "
-                                f"extrinsics and the poses, or force --doppler-sign +1/-1")
-    sign = 1 if median > 0 else -1
-    return sign, {"mode": "auto", "checked": True, "sign": sign, "frames_used": len(cosines),
-                  "median_cosine_raw": round(median, 4), "pose_source": source,
-                  "method": "RANSAC radar velocity vs pose finite differences; v_r = -d . v_s"}
-
-
-def rebase(poses: Sequence[np.ndarray], origin: np.ndarray) -> list[np.ndarray]:
-    """(4, 4) poses expressed relative to ``origin`` (4, 4): the world becomes ``origin``'s frame."""
-    inverse = np.linalg.inv(origin)
-    return [inverse @ p for p in poses]
-
-
-def read_float32_bin(path: Path, columns: int, what: str) -> np.ndarray:
-    """(N, columns) float32 rows of a raw little-endian float32 file."""
-    if not path.is_file():
-        raise SceneError(path, f"missing file ({what})")
-    data = np.fromfile(path, dtype="<f4")
-    if data.size % columns:
-        raise SceneError(path, f"{data.size} float32 values is not a whole number of {columns}-float "
-                               f"rows ({what})")
-    return data.reshape(-1, columns)
-
-
-def transform_points(transform: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-    """(N, 3) points mapped by a (4, 4) transform."""
-    return np.asarray(xyz, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
-
-
-# --------------------------------------------------------------------------------------------
-# OmniHD-Scenes
 
 
 def _read_table(tables: Path, *names: str, required: bool = True) -> tuple[list[dict], Path] | None:
@@ -272,9 +146,7 @@ def clean_radar(raw: np.ndarray) -> tuple[np.ndarray, int, int]:
     with the raw Doppler still in column 3; returns (rows, invalid-flag count, non-finite count)."""
     valid = raw[:, _VALID_COLUMN] != 0
     finite = np.isfinite(raw[:, :4]).all(axis=1)
-    keep = valid & finite
-    return (np.ascontiguousarray(raw[keep][:, _RAW_INDEX], dtype=np.float32), int((~valid).sum()),
-            int((valid & ~finite).sum()))
+    return keep_rows(raw, valid, finite, _RAW_INDEX)
 
 
 def _clip_records(sample_data: list[dict], path: Path, clip: str) -> list[dict]:
@@ -296,17 +168,9 @@ def _clip_records(sample_data: list[dict], path: Path, clip: str) -> list[dict]:
     return sorted(chosen, key=lambda r: int(r.get("timestamp", r["token"])))
 
 
-def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0, frames: int = 50,
-                   width: int = 1920, height: int = 1080, version: str = "v1.0-trainval",
-                   lidar: bool = True, lidar_columns: int = 5, doppler: DopplerSign = "auto",
-                   overwrite: bool = False, progress: bool = True) -> Path:
-    """Convert ``frames`` consecutive frames of one OmniHD-Scenes clip, from index ``start`` in the
-    clip's time-ordered sample_data, into a scene folder at ``out``; returns ``out``.
-
-    Images are undistorted (OpenCV, alpha = 0) and resized to ``width`` x ``height``; the module
-    doc lists the tables and keys read and what is kept and dropped.
-    """
-    root, out = Path(root), Path(out)
+def _check_arguments(root: Path, clip: str, start: int, frames: int, width: int, height: int, version: str,
+                     lidar: bool, lidar_columns: int) -> Path:
+    """The tables' folder, after checking the options and that the root, tables and clip exist."""
     if not root.is_dir():
         raise SceneError(root, "missing folder (the OmniHD-Scenes root)")
     if frames < 1 or start < 0:
@@ -322,12 +186,11 @@ def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0,
         clips = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.isdigit())
         raise SceneError(root / clip, f"missing clip folder; clips here: {clips[:10]}"
                                       + (" ..." if len(clips) > 10 else ""))
+    return tables
 
-    sample_data, sd_path = _read_table(tables, "sample_data")
-    ego_pose, pose_path = _read_table(tables, "ego_pose")
-    calibration, calib_path = _read_table(tables, "sensor_calibration")
-    imu_table = _read_table(tables, "imu", "imu_data", required=False)
 
+def _select_records(sample_data: list[dict], sd_path: Path, clip: str, start: int, frames: int) -> list[dict]:
+    """The ``frames`` sample_data records of ``clip`` from index ``start`` in time order."""
     records = _clip_records(sample_data, sd_path, clip)
     if not records:
         raise SceneError(sd_path, f"no sample_data record belongs to clip {clip!r} (by scene_token or "
@@ -335,21 +198,33 @@ def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0,
     if start + frames > len(records):
         raise SceneError(sd_path, f"clip {clip!r} has {len(records)} frames; --start {start} --frames "
                                   f"{frames} needs frames {start}..{start + frames - 1}")
-    records = records[start:start + frames]
+    return records[start:start + frames]
 
-    poses = {(str(r.get("scene_token")), str(r.get("token"))): r for r in ego_pose}
-    imu = {} if imu_table is None else {(str(r.get("scene_token")), str(r.get("token"))): r for r in imu_table[0]}
 
-    def pose_of(record: dict, channel: str) -> tuple[np.ndarray, str]:
-        token = str(_key(record, ["ego_pose", channel], sd_path, f"sample_data {record['token']!r}"))
-        if (clip, token) not in poses:
-            raise SceneError(pose_path, f"no record with scene_token {clip!r} and token {token!r} "
+@dataclass(frozen=True)
+class _PoseTable:
+    """The ego_pose records of one clip, looked up by a sample_data record's per-sensor token."""
+
+    records: dict[tuple[str, str], dict]
+    clip: str
+    sd_path: Path
+    path: Path
+
+    def __call__(self, record: dict, channel: str) -> tuple[np.ndarray, str]:
+        """(4, 4) ego -> global of ``record``'s ``channel`` and its ego_pose token."""
+        token = str(_key(record, ["ego_pose", channel], self.sd_path, f"sample_data {record['token']!r}"))
+        if (self.clip, token) not in self.records:
+            raise SceneError(self.path, f"no record with scene_token {self.clip!r} and token {token!r} "
                                         f"(sample_data {record['token']!r} ego_pose.{channel})")
         where = f"ego_pose {token!r} pose"
-        return _matrix4(_key(poses[(clip, token)], ["pose"], pose_path, f"ego_pose {token!r}"), pose_path,
-                        where), token
+        return _matrix4(_key(self.records[(self.clip, token)], ["pose"], self.path, f"ego_pose {token!r}"),
+                        self.path, where), token
 
-    # ---- calibration
+
+def _read_calibration(calibration: list[dict], calib_path: Path,
+                      clip: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The clip's raw camera matrix (3, 3), OpenCV distortion coefficients (k,), camera -> ego and
+    radar -> ego (4, 4)."""
     calib = next((r for r in calibration if str(r.get("token")) == clip), None)
     if calib is None:
         raise SceneError(calib_path, f"no record with token {clip!r} (the clip's calibration)")
@@ -368,97 +243,140 @@ def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0,
                           f"calib.{CAMERA}.camera2ego")
     radar_to_ego = _matrix4(_key(calib, ["calib", RADAR, "radar2ego"], calib_path, what), calib_path,
                             f"calib.{RADAR}.radar2ego")
+    return K_raw, dist, cam_to_ego, radar_to_ego
 
-    # ---- per-frame files, times and poses
+
+@dataclass
+class _ClipFrames:
+    """Per converted frame: sensor files, times (s), ego -> global poses (4, 4) and IMU velocity."""
+
+    camera_pose_channel: str
+    image_paths: list[Path] = field(default_factory=list)
+    radar_paths: list[Path] = field(default_factory=list)
+    lidar_paths: list[Path] = field(default_factory=list)
+    cam_times: list[float] = field(default_factory=list)
+    radar_times: list[float] = field(default_factory=list)
+    cam_poses: list[np.ndarray] = field(default_factory=list)
+    radar_poses: list[np.ndarray] = field(default_factory=list)
+    lidar_poses: list[np.ndarray] = field(default_factory=list)
+    velocities: list[np.ndarray | None] = field(default_factory=list)
+
+
+def _frame_sources(records: list[dict], root: Path, clip: str, sd_path: Path, pose_of: _PoseTable,
+                   imu: dict[tuple[str, str], dict], lidar: bool) -> _ClipFrames:
+    """Each record's files, times and poses; the files must exist and each sensor's times increase."""
     camera_pose_channel = CAMERA if all(CAMERA in (r.get("ego_pose") or {}) for r in records) else LIDAR
-    image_paths, radar_paths, lidar_paths = [], [], []
-    cam_times, radar_times, cam_poses, radar_poses, lidar_poses, velocities = [], [], [], [], [], []
+    out = _ClipFrames(camera_pose_channel)
     for record in records:
         what = f"sample_data {record['token']!r}"
         fallback = int(record.get("timestamp", record["token"]))
         image_file = str(_key(record, ["cameras", CAMERA], sd_path, what))
         radar_file = str(_key(record, ["radars", RADAR], sd_path, what))
-        image_paths.append(root / image_file)
-        radar_paths.append(root / radar_file)
-        cam_times.append(_seconds(image_file, fallback))
-        radar_times.append(_seconds(radar_file, fallback))
+        out.image_paths.append(root / image_file)
+        out.radar_paths.append(root / radar_file)
+        out.cam_times.append(_seconds(image_file, fallback))
+        out.radar_times.append(_seconds(radar_file, fallback))
         cam_pose, cam_token = pose_of(record, camera_pose_channel)
-        cam_poses.append(cam_pose)
-        radar_poses.append(pose_of(record, RADAR)[0])
-        velocities.append(_velocity(imu.get((clip, cam_token), {}).get("velocity_ego")))
+        out.cam_poses.append(cam_pose)
+        out.radar_poses.append(pose_of(record, RADAR)[0])
+        out.velocities.append(_velocity(imu.get((clip, cam_token), {}).get("velocity_ego")))
         if lidar:
-            lidar_paths.append(root / str(_key(record, ["lidar", LIDAR], sd_path,
-                                               f"{what} (pass --no-lidar to convert without LiDAR)")))
-            lidar_poses.append(pose_of(record, LIDAR)[0])
-    for path in image_paths:
+            out.lidar_paths.append(root / str(_key(record, ["lidar", LIDAR], sd_path,
+                                                   f"{what} (pass --no-lidar to convert without LiDAR)")))
+            out.lidar_poses.append(pose_of(record, LIDAR)[0])
+    for path in out.image_paths:
         if not path.is_file():
             raise SceneError(path, f"missing file (front camera image listed in {sd_path.name})")
-    for path in lidar_paths:
+    for path in out.lidar_paths:
         if not path.is_file():
             raise SceneError(path, f"missing file (LiDAR scan listed in {sd_path.name}; pass --no-lidar to "
                                    f"convert without LiDAR)")
-    for name, stamps in (("camera", cam_times), ("radar", radar_times)):
+    for name, stamps in (("camera", out.cam_times), ("radar", out.radar_times)):
         if np.any(np.diff(stamps) <= 0):
             raise SceneError(sd_path, f"{name} times of clip {clip!r} do not increase (file name stems, us)")
-    has_velocity = all(v is not None for v in velocities)
+    return out
+
+
+def _scene_frames(clip_frames: _ClipFrames, records: list[dict], start: int, has_velocity: bool,
+                  invalid: list[int], nonfinite: list[int]) -> list[Frame]:
+    """The scene's frames, in the camera-time ego frame of the first one."""
+    origin = clip_frames.cam_poses[0]
+    cam_world, radar_world = rebase(clip_frames.cam_poses, origin), rebase(clip_frames.radar_poses, origin)
+    return [Frame(name=f"{start + i:06d}", timestamp=clip_frames.cam_times[i], ego_to_world=cam_world[i],
+                  radar_timestamp=clip_frames.radar_times[i], radar_ego_to_world=radar_world[i],
+                  ego_velocity=clip_frames.velocities[i] if has_velocity else None,
+                  extra={"source_token": str(records[i]["token"]), "radar_invalid_dropped": invalid[i],
+                         "radar_nonfinite_dropped": nonfinite[i]})
+            for i in range(len(records))]
+
+
+def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0, frames: int = 50,
+                   width: int = 1920, height: int = 1080, version: str = "v1.0-trainval",
+                   lidar: bool = True, lidar_columns: int = 5, doppler: DopplerSign = "auto",
+                   overwrite: bool = False, progress: bool = True) -> Path:
+    """Convert ``frames`` consecutive frames of one OmniHD-Scenes clip, from index ``start`` in the
+    clip's time-ordered sample_data, into a scene folder at ``out``; returns ``out``.
+
+    Images are undistorted (OpenCV, alpha = 0) and resized to ``width`` x ``height``; the module
+    doc lists the tables and keys read and what is kept and dropped.
+    """
+    root, out = Path(root), Path(out)
+    tables = _check_arguments(root, clip, start, frames, width, height, version, lidar, lidar_columns)
+
+    sample_data, sd_path = _read_table(tables, "sample_data")
+    ego_pose, pose_path = _read_table(tables, "ego_pose")
+    calibration, calib_path = _read_table(tables, "sensor_calibration")
+    imu_table = _read_table(tables, "imu", "imu_data", required=False)
+
+    records = _select_records(sample_data, sd_path, clip, start, frames)
+    pose_of = _PoseTable({(str(r.get("scene_token")), str(r.get("token"))): r for r in ego_pose}, clip, sd_path,
+                         pose_path)
+    imu = {} if imu_table is None else {(str(r.get("scene_token")), str(r.get("token"))): r for r in imu_table[0]}
+    K_raw, dist, cam_to_ego, radar_to_ego = _read_calibration(calibration, calib_path, clip)
+    clip_frames = _frame_sources(records, root, clip, sd_path, pose_of, imu, lidar)
+    has_velocity = all(v is not None for v in clip_frames.velocities)
 
     # ---- radar
-    scans, invalid, nonfinite = [], [], []
-    for path in radar_paths:
-        rows, n_invalid, n_nonfinite = clean_radar(read_float32_bin(path, RAW_RADAR_COLUMNS,
-                                                                   "front radar scan, float32 x 8"))
-        scans.append(rows)
-        invalid.append(n_invalid)
-        nonfinite.append(n_nonfinite)
+    scans, invalid, nonfinite = read_radar_scans(clip_frames.radar_paths, RAW_RADAR_COLUMNS,
+                                                 "front radar scan, float32 x 8", clean_radar)
 
     # ---- scene geometry
-    first = cv2.imread(str(image_paths[0]), cv2.IMREAD_COLOR)
-    if first is None:
-        raise SceneError(image_paths[0], "unreadable image")
+    image_paths = clip_frames.image_paths
+    first = read_first_image(image_paths[0])
     rectifier = ImageRectifier.build(K_raw, dist, (first.shape[1], first.shape[0]), (width, height))
     camera = Camera(width, height, rectifier.K, cam_to_ego)
     radar_spec = RadarSpec(radar_to_ego, RADAR_FIELDS)
-    origin = cam_poses[0]
-    cam_world, radar_world = rebase(cam_poses, origin), rebase(radar_poses, origin)
-    scene_frames = [Frame(name=f"{start + i:06d}", timestamp=cam_times[i], ego_to_world=cam_world[i],
-                          radar_timestamp=radar_times[i], radar_ego_to_world=radar_world[i],
-                          ego_velocity=velocities[i] if has_velocity else None,
-                          extra={"source_token": str(records[i]["token"]), "radar_invalid_dropped": invalid[i],
-                                 "radar_nonfinite_dropped": nonfinite[i]})
-                    for i in range(len(records))]
-    sign, sign_report = doppler_sign(scans, scene_frames, camera, radar_spec, radar_paths[0].parent, doppler)
-    for scan in scans:
-        scan[:, 3] *= sign
+    scene_frames = _scene_frames(clip_frames, records, start, has_velocity, invalid, nonfinite)
+    sign, sign_report = doppler_sign(scans, scene_frames, camera, radar_spec, clip_frames.radar_paths[0].parent,
+                                     doppler)
+    apply_doppler_sign(scans, sign, 3)
 
     source = {
         "dataset": "omnihd-scenes", "clip": clip, "start": start, "frames": frames, "version": version,
         "path": str(root), "sensors": {"camera": CAMERA, "radar": RADAR, "lidar": LIDAR if lidar else None},
-        "camera_pose": (f"own ego pose (ego_pose.{CAMERA})" if camera_pose_channel == CAMERA else
+        "camera_pose": (f"own ego pose (ego_pose.{CAMERA})" if clip_frames.camera_pose_channel == CAMERA else
                         f"the LiDAR's ego pose (sample_data has no ego_pose.{CAMERA})"),
         "poses": "ego_pose tables (ego -> global), rebased to the camera-time ego frame of the first frame",
         "timestamps": "file name stems, microseconds",
         "images": f"undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0) and resized "
                   f"{first.shape[1]}x{first.shape[0]} -> {width}x{height}",
         "doppler_sign": sign_report,
-        "radar_rows": {"read": int(sum(len(s) for s in scans) + sum(invalid) + sum(nonfinite)),
-                       "kept": int(sum(len(s) for s in scans)), "invalid_dropped": int(sum(invalid)),
-                       "nonfinite_dropped": int(sum(nonfinite))},
+        "radar_rows": radar_row_counts(scans, invalid, nonfinite, "invalid_dropped"),
         "ego_velocity": ("imu velocity_ego at the camera's pose token" if has_velocity else
                          "not written (no imu table, or a frame without a velocity_ego)"),
     }
 
-    with SceneWriter(out, overwrite=overwrite) as writer:
-        for i in tqdm(range(len(records)), desc="omnihd", unit="frame", disable=not progress):
-            bgr = first if i == 0 else cv2.imread(str(image_paths[i]), cv2.IMREAD_COLOR)
-            optional = {}
-            if lidar:
-                points = read_float32_bin(lidar_paths[i], lidar_columns, f"LiDAR scan, float32 x {lidar_columns}")
-                # Into the ego frame at the camera's time: the scene stores LiDAR in the frame's ego frame.
-                lidar_to_cam_ego = np.linalg.inv(cam_poses[i]) @ lidar_poses[i]
-                xyz = transform_points(lidar_to_cam_ego, points[:, :3])
-                optional["lidar"] = np.column_stack([xyz, points[:, 3]]).astype(np.float32)
-            writer.add_frame(scene_frames[i], rectifier(bgr, image_paths[i]), scans[i], **optional)
-        writer.finish(f"omnihd-{clip}-{start}", camera, radar_spec, source=source)
+    def frame_files(i: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        bgr = first if i == 0 else cv2.imread(str(image_paths[i]), cv2.IMREAD_COLOR)
+        optional = {}
+        if lidar:
+            # Into the ego frame at the camera's time: the scene stores LiDAR in the frame's ego frame.
+            lidar_to_cam_ego = np.linalg.inv(clip_frames.cam_poses[i]) @ clip_frames.lidar_poses[i]
+            optional["lidar"] = read_lidar_scan(clip_frames.lidar_paths[i], lidar_columns, lidar_to_cam_ego)
+        return rectifier(bgr, image_paths[i]), optional
+
+    write_scene(out, f"omnihd-{clip}-{start}", camera, radar_spec, source, scene_frames, scans, frame_files,
+                overwrite, progress, "omnihd")
     return out
 
 

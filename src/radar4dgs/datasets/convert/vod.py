@@ -32,7 +32,7 @@ Conventions chosen here:
   ``n`` is at ``n * frame_period`` s. Radar and image are already synchronised and motion
   compensated to the camera, so ``radar_timestamp`` and ``radar_ego_to_world`` equal the camera's.
 * ``v_r`` is the dataset's relative radial velocity with its sign checked against the poses
-  (:func:`radar4dgs.datasets.convert.omnihd.doppler_sign`); ``v_r_comp`` (the dataset's
+  (:func:`radar4dgs.datasets.convert.common.doppler_sign`); ``v_r_comp`` (the dataset's
   ego-motion-compensated radial velocity, same sign applied) and ``rcs`` are extra columns.
 
 Dropped: radar rows from older scans (``time`` != 0, only in accumulated-scan folders) and rows
@@ -52,11 +52,11 @@ from typing import Literal, Optional
 import cv2
 import numpy as np
 import tyro
-from tqdm import tqdm
 
-from radar4dgs.datasets.convert.omnihd import (DopplerSign, ImageRectifier, doppler_sign, read_float32_bin, rebase,
-                                           transform_points)
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError, SceneWriter
+from radar4dgs.datasets.convert.common import (DopplerSign, ImageRectifier, apply_doppler_sign, doppler_sign,
+                                               keep_rows, radar_row_counts, read_first_image, read_lidar_scan,
+                                               read_radar_scans, rebase, write_scene)
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
 
 RAW_RADAR_COLUMNS = 7
 RADAR_FIELDS = ("x", "y", "z", "v_r", "rcs", "v_r_comp")
@@ -242,18 +242,12 @@ def clean_radar(raw: np.ndarray) -> tuple[np.ndarray, int, int]:
     older scans, non-finite rows)."""
     current = raw[:, _TIME_COLUMN] == 0
     finite = np.isfinite(raw[:, [0, 1, 2, 4]]).all(axis=1)
-    keep = current & finite
-    return (np.ascontiguousarray(raw[keep][:, _RAW_INDEX], dtype=np.float32), int((~current).sum()),
-            int((current & ~finite).sum()))
+    return keep_rows(raw, current, finite, _RAW_INDEX)
 
 
-def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | None = None, height: int | None = None,
-                lidar: Literal["auto", "on", "off"] = "auto", doppler: DopplerSign = "auto",
-                frame_period: float = 0.1, max_speed: float = 40.0, overwrite: bool = False,
-                progress: bool = True) -> Path:
-    """Convert VoD frames ``frames`` ("A:B", frames A .. B-1, one sequence) into a scene folder at
-    ``out`` and return ``out``. Images keep their size unless ``width`` and ``height`` are given."""
-    root, out = Path(root), Path(out)
+def _check_arguments(root: Path, frames: str, width: int | None, height: int | None, frame_period: float,
+                     max_speed: float) -> tuple[int, int, dict[str, Path]]:
+    """The frame range (A, B) and the radar/training folders, after checking the options and the layout."""
     first_number, end_number = parse_range(frames)
     if (width is None) != (height is None):
         raise ValueError("give both --width and --height, or neither (keep the image size)")
@@ -268,65 +262,87 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
     for name, folder in folders.items():
         if not folder.is_dir():
             raise SceneError(folder, f"missing folder (VoD radar/training/{name}); is {root} the View-of-Delft root?")
+    return first_number, end_number, folders
 
+
+def _frame_numbers(velodyne: Path, first_number: int, end_number: int, frames: str) -> list[int]:
+    """Frame numbers A .. B-1; each must have a radar scan (a gap separates two sequences)."""
     numbers = list(range(first_number, end_number))
-    available = _available(folders["velodyne"], ".bin")
+    available = _available(velodyne, ".bin")
     missing = [n for n in numbers if n not in available]
     if len(missing) == len(numbers):
-        raise SceneError(folders["velodyne"], f"no radar scans for frames {first_number:05d}..{end_number - 1:05d}; "
-                                              f"frames here: {_spans(sorted(available))}")
+        raise SceneError(velodyne, f"no radar scans for frames {first_number:05d}..{end_number - 1:05d}; "
+                                   f"frames here: {_spans(sorted(available))}")
     if missing:
-        raise SceneError(folders["velodyne"], f"frames {', '.join(f'{n:05d}' for n in missing[:10])} are missing "
-                                              f"inside --frames {frames}: a gap in the numbering separates two "
-                                              f"sequences (frames here: {_spans(sorted(available))}); choose a "
-                                              f"range inside one sequence")
-    names = [f"{n:05d}" for n in numbers]
+        raise SceneError(velodyne, f"frames {', '.join(f'{n:05d}' for n in missing[:10])} are missing "
+                                   f"inside --frames {frames}: a gap in the numbering separates two "
+                                   f"sequences (frames here: {_spans(sorted(available))}); choose a "
+                                   f"range inside one sequence")
+    return numbers
 
+
+def _image_paths(image_dir: Path, names: list[str]) -> list[Path]:
+    """Each frame's camera image, .jpg or .png."""
     image_paths = []
     for name in names:
-        candidates = [folders["image_2"] / f"{name}{s}" for s in (".jpg", ".png")]
+        candidates = [image_dir / f"{name}{s}" for s in (".jpg", ".png")]
         found = next((p for p in candidates if p.is_file()), None)
         if found is None:
             raise SceneError(candidates[0], "missing file (camera image, .jpg or .png)")
         image_paths.append(found)
-    camera_to_world = [read_pose(folders["pose"] / f"{name}.json") for name in names]
+    return image_paths
+
+
+def _camera_poses(pose_dir: Path, names: list[str], frames: str, frame_period: float,
+                  max_speed: float) -> list[np.ndarray]:
+    """(4, 4) camera -> odometry world per frame; refuses a range whose odometry restarts."""
+    camera_to_world = [read_pose(pose_dir / f"{name}.json") for name in names]
     breaks = sequence_breaks(names, camera_to_world, frame_period, max_speed)
     if breaks:
         a, b, why = breaks[0]
-        raise SceneError(folders["pose"], f"--frames {frames} crosses two sequences between frames {a} and {b}: "
-                                          f"{why}; choose a range inside one sequence")
+        raise SceneError(pose_dir, f"--frames {frames} crosses two sequences between frames {a} and {b}: "
+                                   f"{why}; choose a range inside one sequence")
+    return camera_to_world
 
-    # ---- calibration (per frame in VoD; one rig, so every frame must agree)
-    calib_paths = [folders["calib"] / f"{name}.txt" for name in names]
+
+def _read_rig(calib_dir: Path, names: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """K (3, 3), reference camera -> camera 2 and radar -> camera 2 (4, 4) of the first frame's
+    calibration; every other frame's must agree."""
+    # Per frame in VoD; one rig, so every frame must agree.
+    calib_paths = [calib_dir / f"{name}.txt" for name in names]
     K, reference_to_cam, radar_to_cam = sensor_to_camera(read_calib(calib_paths[0]), calib_paths[0])
     for path in calib_paths[1:]:
         K_i, _, radar_to_cam_i = sensor_to_camera(read_calib(path), path)
         if not (np.allclose(K_i, K, atol=1e-6) and np.allclose(radar_to_cam_i, radar_to_cam, atol=1e-6)):
             raise SceneError(path, f"calibration differs from {calib_paths[0].name}'s; one scene needs one rig")
+    return K, reference_to_cam, radar_to_cam
 
-    lidar_paths, lidar_note = _lidar_files(root, names, lidar)
-    lidar_to_cam = None
-    if lidar_paths:
-        lidar_calib = root / "lidar" / "training" / "calib" / f"{names[0]}.txt"
-        lidar_to_cam = sensor_to_camera(read_calib(lidar_calib), lidar_calib)[2]
+
+def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | None = None, height: int | None = None,
+                lidar: Literal["auto", "on", "off"] = "auto", doppler: DopplerSign = "auto",
+                frame_period: float = 0.1, max_speed: float = 40.0, overwrite: bool = False,
+                progress: bool = True) -> Path:
+    """Convert VoD frames ``frames`` ("A:B", frames A .. B-1, one sequence) into a scene folder at
+    ``out`` and return ``out``. Images keep their size unless ``width`` and ``height`` are given."""
+    root, out = Path(root), Path(out)
+    first_number, end_number, folders = _check_arguments(root, frames, width, height, frame_period, max_speed)
+    numbers = _frame_numbers(folders["velodyne"], first_number, end_number, frames)
+    names = [f"{n:05d}" for n in numbers]
+    image_paths = _image_paths(folders["image_2"], names)
+    camera_to_world = _camera_poses(folders["pose"], names, frames, frame_period, max_speed)
+    K, reference_to_cam, radar_to_cam = _read_rig(folders["calib"], names)
+    lidar_paths, lidar_note, lidar_to_cam = _lidar_setup(root, names, lidar)
 
     # ---- radar
-    scans, older, nonfinite = [], [], []
-    for name in names:
-        raw = read_float32_bin(folders["velodyne"] / f"{name}.bin", RAW_RADAR_COLUMNS, "radar scan, float32 x 7")
-        rows, n_older, n_nonfinite = clean_radar(raw)
-        scans.append(rows)
-        older.append(n_older)
-        nonfinite.append(n_nonfinite)
+    scans, older, nonfinite = read_radar_scans([folders["velodyne"] / f"{name}.bin" for name in names],
+                                               RAW_RADAR_COLUMNS, "radar scan, float32 x 7", clean_radar)
 
     # ---- geometry: ego = radar frame
     cam_to_ego = np.linalg.inv(radar_to_cam)
     # The pose files give the (rectified reference) camera's pose; image_2's camera sits at its offset.
     ego_poses = [c @ np.linalg.inv(reference_to_cam) @ radar_to_cam for c in camera_to_world]
     world = rebase(ego_poses, ego_poses[0])
-    first = cv2.imread(str(image_paths[0]), cv2.IMREAD_COLOR)
-    if first is None:
-        raise SceneError(image_paths[0], "unreadable image")
+    first = read_first_image(image_paths[0])
     size_in = (first.shape[1], first.shape[0])
     rectifier = ImageRectifier.build(K, None, size_in, None if width is None else (width, height))
     camera = Camera(rectifier.size_out[0], rectifier.size_out[1], rectifier.K, cam_to_ego)
@@ -336,10 +352,8 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
                           extra={"radar_older_scan_dropped": older[i], "radar_nonfinite_dropped": nonfinite[i]})
                     for i, (name, n) in enumerate(zip(names, numbers))]
     sign, sign_report = doppler_sign(scans, scene_frames, camera, radar_spec, folders["velodyne"], doppler)
-    for scan in scans:
-        scan[:, [3, 5]] *= sign
+    apply_doppler_sign(scans, sign, [3, 5])
 
-    kept = int(sum(len(s) for s in scans))
     source = {
         "dataset": "view-of-delft", "frames": f"{names[0]}..{names[-1]}", "path": str(root),
         "ego_frame": "the radar frame (radar_to_ego = identity)",
@@ -348,22 +362,31 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
         "timestamps": f"frame number x {frame_period} s (VoD's KITTI files carry no times)",
         "images": f"rectified by VoD; {size_in[0]}x{size_in[1]} -> {camera.width}x{camera.height}",
         "doppler_sign": sign_report,
-        "radar_rows": {"read": kept + int(sum(older) + sum(nonfinite)), "kept": kept,
-                       "older_scan_dropped": int(sum(older)), "nonfinite_dropped": int(sum(nonfinite))},
+        "radar_rows": radar_row_counts(scans, older, nonfinite, "older_scan_dropped"),
         "lidar": lidar_note,
     }
 
-    with SceneWriter(out, overwrite=overwrite) as writer:
-        for i in tqdm(range(len(names)), desc="vod", unit="frame", disable=not progress):
-            bgr = first if i == 0 else cv2.imread(str(image_paths[i]), cv2.IMREAD_COLOR)
-            optional = {}
-            if lidar_paths:
-                points = read_float32_bin(lidar_paths[i], 4, "LiDAR scan, float32 x 4")
-                xyz = transform_points(cam_to_ego @ lidar_to_cam, points[:, :3])
-                optional["lidar"] = np.column_stack([xyz, points[:, 3]]).astype(np.float32)
-            writer.add_frame(scene_frames[i], rectifier(bgr, image_paths[i]), scans[i], **optional)
-        writer.finish(f"vod-{names[0]}-{names[-1]}", camera, radar_spec, source=source)
+    def frame_files(i: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        bgr = first if i == 0 else cv2.imread(str(image_paths[i]), cv2.IMREAD_COLOR)
+        optional = {}
+        if lidar_paths:
+            optional["lidar"] = read_lidar_scan(lidar_paths[i], 4, cam_to_ego @ lidar_to_cam)
+        return rectifier(bgr, image_paths[i]), optional
+
+    write_scene(out, f"vod-{names[0]}-{names[-1]}", camera, radar_spec, source, scene_frames, scans, frame_files,
+                overwrite, progress, "vod")
     return out
+
+
+def _lidar_setup(root: Path, names: list[str], mode: str) -> tuple[list[Path], str, np.ndarray | None]:
+    """The LiDAR scans to convert (empty for none), a note for ``source``, and LiDAR -> camera 2
+    (4, 4; None without LiDAR)."""
+    lidar_paths, lidar_note = _lidar_files(root, names, mode)
+    lidar_to_cam = None
+    if lidar_paths:
+        lidar_calib = root / "lidar" / "training" / "calib" / f"{names[0]}.txt"
+        lidar_to_cam = sensor_to_camera(read_calib(lidar_calib), lidar_calib)[2]
+    return lidar_paths, lidar_note, lidar_to_cam
 
 
 def _lidar_files(root: Path, names: list[str], mode: str) -> tuple[list[Path], str]:
