@@ -25,7 +25,9 @@ from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import read_scene
 from radar4dgs.model.field import DeformationField, FieldConfig, randomize_
 from radar4dgs.train.fit_motion import MotionConfig, run_fit
-from radar4dgs.motion.flow import motion_frontend_metrics, prepare_flow, time_dis
+from radar4dgs.motion.flow import prepare_flow
+from radar4dgs.motion.metrics import motion_frontend_metrics
+from radar4dgs.motion.optical_flow import time_dis
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
 MODES = {"flow_only": (True, False), "radar_only": (False, True), "both": (True, True)}

@@ -13,7 +13,9 @@ from radar4dgs.io.scene import read_scene
 from radar4dgs.motion.association import (RadarDynamics, associate_nearest, associate_velocities,
                                           compensated_radial_velocity, load_radar_dynamics,
                                           oracle_radar_velocity)
-from radar4dgs.motion.flow import FlowConfig, frame_pairs, load_flow_pairs, motion_frontend_metrics, prepare_flow
+from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.flow import frame_pairs, load_flow_pairs, prepare_flow
+from radar4dgs.motion.metrics import motion_frontend_metrics
 
 # Tiny tensors: on the shared 2-core CI machine extra torch threads only spin.
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -32,7 +32,7 @@ import tyro
 
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import Scene, SceneError, SceneWarning, read_scene
-from radar4dgs.radar.ego_motion import unit_directions
+from radar4dgs.radar.doppler import unit_directions
 from radar4dgs.radar.poses import expected_radar_velocity
 from radar4dgs.radar.process import load_radar_outputs
 
@@ -129,7 +129,7 @@ def evaluate_masks(scene: Scene, prepared_dir: Path) -> dict:
 
 
 def evaluate_flow(scene: Scene, prepared_dir: Path) -> dict:
-    from radar4dgs.motion.flow import motion_frontend_metrics
+    from radar4dgs.motion.metrics import motion_frontend_metrics
 
     return motion_frontend_metrics(scene, prepared_dir)
 

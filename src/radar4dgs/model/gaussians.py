@@ -18,9 +18,8 @@ optimizer parameter groups (:meth:`GaussianSet.param_groups`); densification liv
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -29,7 +28,7 @@ from torch import Tensor, nn
 
 from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.motion.flow import backproject
+from radar4dgs.motion.lift import backproject
 from radar4dgs.model.config import GaussianInitConfig
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal, Mapping
 
 from radar4dgs.model.config import FieldConfig
-from radar4dgs.motion.flow import FlowConfig
+from radar4dgs.motion.config import FlowConfig
 
 
 @dataclass

@@ -20,7 +20,8 @@ from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.train.fit_motion import (FitConfig, FlowSamples, RadarSamples, collect_radar_samples,
                                         flow_samples_from_pairs)
-from radar4dgs.motion.flow import FlowConfig, load_flow_pairs
+from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.flow import load_flow_pairs
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import require_prepared
 from radar4dgs.model.view import View, frame_view, resize_image, resize_nearest, resized_size

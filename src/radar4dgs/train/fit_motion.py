@@ -37,8 +37,9 @@ from radar4dgs.config import to_dict
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.motion.association import associate_velocities, load_radar_dynamics
 from radar4dgs.model.field import DeformationField, FieldConfig
-from radar4dgs.motion.flow import (FlowConfig, backproject, frame_pairs, load_depth, load_flow_pairs, load_mask,
-                                   prepare_flow)
+from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.flow import frame_pairs, load_depth, load_flow_pairs, load_mask, prepare_flow
+from radar4dgs.motion.lift import backproject
 from radar4dgs.metrics.losses import flow_loss, radar_loss
 from radar4dgs.train.config import FitConfig, MotionConfig
 

@@ -1,0 +1,81 @@
+"""Front-end metrics of the pseudo scene flow in ``<prepared>/flow`` against the scene's ground
+truth (evaluation only): 2D end-point error, scene-flow end-point error and coverage on dynamic
+pixels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from radar4dgs.motion.flow import load_flow_pairs
+from radar4dgs.motion.lift import backproject
+from radar4dgs.motion.sampling import pixel_grid
+
+
+def gt_flow_2d(scene, index: int, next_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth 2D flow of frame ``index`` to ``index + 1`` from gt/depth and gt/flow (evaluation).
+
+    Each pixel's surface point ``X`` (from gt/depth) moves to ``X + gt_flow`` (world) and is
+    projected into frame ``index + 1``.
+
+    Returns:
+        flow (H, W, 2) float64 and valid (H, W) bool (finite depth, in front of camera j).
+    """
+    j = index + 1 if next_index is None else next_index
+    if j != index + 1:
+        raise ValueError("gt/flow is a one-frame displacement; only next_index = index + 1 is defined")
+    depth = scene.load_optional("gt/depth", index).astype(np.float64)
+    motion = scene.load_optional("gt/flow", index).astype(np.float64)
+    height, width = depth.shape
+    grid = pixel_grid(height, width).reshape(-1, 2)
+    z = depth.reshape(-1)
+    finite = np.isfinite(z) & (z > 0)
+    world = backproject(grid, np.where(finite, z, 1.0), scene.camera.K, scene.world_to_camera(index))
+    moved = world + motion.reshape(-1, 3)
+    w2c = scene.world_to_camera(j)
+    cam = moved @ w2c[:3, :3].T + w2c[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (cam @ np.asarray(scene.camera.K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
+    valid = finite & (cam[:, 2] > 1e-6) & np.isfinite(uv).all(axis=1)
+    flow = np.where(valid[:, None], uv - grid, 0.0)
+    return flow.reshape(height, width, 2), valid.reshape(height, width)
+
+
+def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | None = None) -> dict:
+    """Front-end metrics of the pseudo scene flow in ``<prepared>/flow`` against the scene's gt/.
+
+    Only pairs of adjacent frames (``index_j = index_i + 1``) are scored, since gt/flow is a
+    one-frame displacement.
+
+    - ``flow2d_epe_dynamic`` (px): mean over all gt-dynamic pixels with finite gt depth, pooled
+      over pairs, of |stored 2D flow - gt 2D flow| (gt 2D flow from :func:`gt_flow_2d`).
+    - ``sceneflow_epe_dynamic`` (m): mean over the stored lifted pairs whose pixel is gt-dynamic
+      of |(points_j - points_i) - gt/flow[pixel]|.
+    - ``sceneflow_coverage``: fraction of gt-dynamic pixels (finite depth) that got a lifted pair.
+    - ``flow2d_pairs``: pairs scored.
+    """
+    pairs = [p for p in load_flow_pairs(prepared_dir) if int(p["index_j"]) == int(p["index_i"]) + 1]
+    if max_pairs is not None:
+        pairs = pairs[:max_pairs]
+    errors_2d, errors_3d = [], []
+    dynamic_total, covered = 0, 0
+    for pair in pairs:
+        i = int(pair["index_i"])
+        gt2d, valid = gt_flow_2d(scene, i)
+        dynamic = scene.load_optional("gt/dynamic_mask", i) & valid
+        errors_2d.append(np.linalg.norm(pair["flow"][dynamic] - gt2d[dynamic], axis=1))
+        motion = scene.load_optional("gt/flow", i)
+        cols = pair["pixels"][:, 0].astype(np.int64)
+        rows = pair["pixels"][:, 1].astype(np.int64)
+        keep = dynamic[rows, cols]
+        predicted = (pair["points_j"] - pair["points_i"]).astype(np.float64)[keep]
+        errors_3d.append(np.linalg.norm(predicted - motion[rows[keep], cols[keep]], axis=1))
+        dynamic_total += int(dynamic.sum())
+        covered += int(keep.sum())
+    e2 = np.concatenate(errors_2d) if errors_2d else np.zeros(0)
+    e3 = np.concatenate(errors_3d) if errors_3d else np.zeros(0)
+    return {"flow2d_epe_dynamic": float(e2.mean()) if len(e2) else None,
+            "sceneflow_epe_dynamic": float(e3.mean()) if len(e3) else None,
+            "sceneflow_coverage": covered / dynamic_total if dynamic_total else None,
+            "flow2d_pairs": len(pairs)}

@@ -1,0 +1,97 @@
+"""Whole-object translations: per connected component of the dynamic mask, the single 2D shift
+that best carries the object from one image to the next, replacing the dense flow where it explains
+the images better (``FlowConfig.rigid_objects``: the aperture problem of uniform objects)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radar4dgs.motion.sampling import bilinear_sample
+
+
+def _photometric_error(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, targets: np.ndarray) -> float:
+    """Mean |a(pixels) - b(targets)| (grey levels), b sampled bilinearly; a target outside b counts
+    as the largest error (255), so leaving the image is never cheap."""
+    values, inside = bilinear_sample(gray_b, targets)
+    source = gray_a[pixels[:, 1].astype(np.int64), pixels[:, 0].astype(np.int64)].astype(np.float64)
+    return float(np.where(inside, np.abs(source - values), 255.0).mean())
+
+
+def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, start: np.ndarray,
+                       search: int, max_pixels: int = 4000) -> tuple[np.ndarray, float] | None:
+    """The 2D translation that best carries an object's pixels of image a onto image b.
+
+    Exhaustive integer search of the mean absolute grey-level error over a (2 search + 1)^2
+    window around ``start``, then a parabola through the neighbours of the best shift on each axis
+    for the sub-pixel part. Written here: OpenCV's matchTemplate takes rectangular templates only,
+    and an object's mask is not a rectangle.
+
+    Args:
+        gray_a, gray_b: (H, W) uint8 grey images.
+        pixels: (N, 2) integer (u, v) of the object in image a.
+        start: (2,) the window centre (du, dv) in pixels, rounded to integers.
+        search: the window's radius in pixels.
+        max_pixels: larger objects are matched on an evenly strided subset of their pixels.
+    Returns:
+        ((2,) float64 shift (du, dv), its mean error), or None when the best integer shift lies on
+        the window's border (the true one may lie beyond it).
+    """
+    height, width = gray_a.shape
+    pixels = np.asarray(pixels, dtype=np.int64)
+    if len(pixels) > max_pixels:
+        pixels = pixels[:: -(-len(pixels) // max_pixels)]
+    start = np.round(np.asarray(start, dtype=np.float64)).astype(np.int64)
+    offsets = np.arange(-search, search + 1)
+    source = gray_a[pixels[:, 1], pixels[:, 0]].astype(np.float32)
+    b = gray_b.astype(np.float32)
+    # errors[y, x]: shift (start + (offsets[x], offsets[y])); targets outside b cost 255.
+    u = pixels[None, :, 0] + start[0] + offsets[:, None]  # (S, N)
+    v = pixels[None, :, 1] + start[1] + offsets[:, None]
+    u_in, v_in = (u >= 0) & (u < width), (v >= 0) & (v < height)
+    u, v = np.clip(u, 0, width - 1), np.clip(v, 0, height - 1)
+    errors = np.empty((len(offsets), len(offsets)))
+    for row, (v_row, v_ok) in enumerate(zip(v, v_in)):
+        diff = np.abs(source[None] - b[v_row[None], u])
+        errors[row] = np.where(v_ok[None] & u_in, diff, 255.0).mean(axis=1)
+    y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
+    if y in (0, len(offsets) - 1) or x in (0, len(offsets) - 1):
+        return None
+    shift = (start + offsets[[x, y]]).astype(np.float64)
+    for axis, (minus, centre, plus) in enumerate(((errors[y, x - 1], errors[y, x], errors[y, x + 1]),
+                                                  (errors[y - 1, x], errors[y, x], errors[y + 1, x]))):
+        curvature = minus - 2 * centre + plus
+        if curvature > 0:
+            shift[axis] += float(np.clip(0.5 * (minus - plus) / curvature, -0.5, 0.5))
+    return shift, _photometric_error(gray_a, gray_b, pixels, pixels + shift)
+
+
+def rigid_object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: np.ndarray,
+                      search: int = 12, accept: float = 0.9, min_pixels: int = 10) -> np.ndarray:
+    """``flow`` with each object's pixels set to the object's single translation where that explains
+    the images better (see ``FlowConfig.rigid_objects``).
+
+    Args:
+        gray_a, gray_b: (H, W) uint8 grey images a and b.
+        flow: (H, W, 2) dense flow a -> b.
+        mask: (H, W) bool dynamic mask of image a; its 8-connected components are the objects.
+        search, accept, min_pixels: ``FlowConfig.rigid_search``, ``rigid_accept``, ``rigid_min_pixels``.
+    Returns:
+        (H, W, 2) float32 flow (a copy).
+    """
+    import cv2
+
+    out = np.array(flow, dtype=np.float32, copy=True)
+    count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
+    for label in range(1, count):
+        rows, cols = np.nonzero(labels == label)
+        if len(rows) < min_pixels:
+            continue
+        pixels = np.stack([cols, rows], axis=1)
+        dense = flow[rows, cols].astype(np.float64)
+        found = object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), search)
+        if found is None:
+            continue
+        shift, error = found
+        if error < accept * _photometric_error(gray_a, gray_b, pixels, pixels + dense):
+            out[rows, cols] = shift
+    return out
