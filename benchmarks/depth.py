@@ -108,10 +108,11 @@ def figure(scene, masks, config, frame: int, path: Path) -> None:
 
     from radar4dgs.io.atomic import atomic_write_bytes
     from radar4dgs.depth import recover_scale
+    from radar4dgs.depth.depth_maps import frame_confidences
     from radar4dgs.depth.geometry import transform_points
     from radar4dgs.depth.pipeline import render_frame, sky_prior
-    from radar4dgs.depth.scale import FrameParameters, frame_confidences
     from radar4dgs.depth.sources import to_inverse
+    from radar4dgs.depth.temporal import FrameParameters
     from radar4dgs.depth.visualize import depth_figure
 
     x = to_inverse(scene.load_optional("priors/mono_depth", frame), "inverse-depth")

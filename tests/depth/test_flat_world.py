@@ -16,8 +16,9 @@ from radar4dgs.io.scene import read_mask_png, read_scene
 from radar4dgs.datasets.synth import SynthConfig, synthesize
 from radar4dgs.depth import (DepthConfig, DepthWarning, FlatWorldDepth, FrameFit, depth_anything_available,
                              fill_from_neighbours, flat_world_depth, limit_metric_correction, prepare_depth)
+from radar4dgs.depth.depth_maps import frame_confidences
 from radar4dgs.depth.flat_world import lidar_ground_z
-from radar4dgs.depth.scale import RadarPairs, frame_confidences
+from radar4dgs.depth.pairs import RadarPairs
 from radar4dgs.depth.sources import resolve_source
 
 FIXTURE = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "aimotive-night"

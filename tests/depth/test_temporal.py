@@ -1,5 +1,6 @@
 """Temporal consistency of the affine depth parameters (``DepthConfig.temporal_window``):
-closed-form radar pairs whose true scale/shift drift slowly from frame to frame."""
+closed-form radar pairs whose true scale/shift drift slowly from frame to frame; and the
+neighbour fallback of frames without a fit."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ import numpy as np
 import pytest
 
 from radar4dgs.depth import DepthConfig, DepthWarning, fill_from_neighbours
-from radar4dgs.depth.scale import VALID, RadarPairs, affine_fit, temporal_refine
+from radar4dgs.depth.inverse_affine import affine_fit
+from radar4dgs.depth.pairs import VALID, FrameFit, RadarPairs
+from radar4dgs.depth.temporal import temporal_refine
 
 FRAMES = 40
 
@@ -100,3 +103,21 @@ def test_failed_frames_are_not_used_and_still_fall_back_to_neighbours():
 def test_window_must_be_odd():
     with pytest.raises(ValueError, match="odd"):
         DepthConfig(temporal_window=4)
+
+
+def _fit(ok, a=math.nan, b=math.nan):
+    pairs = RadarPairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 3), int),
+                       np.zeros(0, np.int8))
+    return FrameFit("affine", a, b, ok, "ok" if ok else "3 valid pairs < min_pairs 12", pairs, np.zeros(0, bool))
+
+
+def test_too_few_pairs_fall_back_to_neighbours():
+    fits = [_fit(False), _fit(True, 1.0, 0.1), _fit(False), _fit(True, 2.0, 0.3), _fit(False)]
+    with pytest.warns(DepthWarning, match="frame 2.*frame\\(s\\) 1, 3"):
+        params = fill_from_neighbours(fits, [0.0, 1.0, 2.0, 3.0, 4.0])
+    assert [p.source for p in params] == ["neighbours", "fit", "neighbours", "fit", "neighbours"]
+    assert (params[0].a, params[0].b) == (1.0, 0.1)  # only a later neighbour
+    assert params[2].a == pytest.approx(1.5) and params[2].b == pytest.approx(0.2)  # interpolated in time
+    assert params[4].from_frames == (3,)
+    with pytest.raises(ValueError, match="no frame has enough"):
+        fill_from_neighbours([_fit(False)], [0.0])

@@ -11,15 +11,18 @@ weight-free detector. :func:`prepare_depth` writes the results into the prepared
 """
 
 from radar4dgs.depth.config import DepthConfig
+from radar4dgs.depth.depth_maps import metric_depth
 from radar4dgs.depth.flat_world import FlatWorldDepth, flat_world_depth
+from radar4dgs.depth.inverse_affine import fit_inverse_affine
 from radar4dgs.depth.metrics import depth_frontend_metrics, frame_depth_errors, score_frames
+from radar4dgs.depth.pairs import DepthWarning, FrameFit
+from radar4dgs.depth.paper_scale import histogram_vote, plane_votes
 from radar4dgs.depth.pipeline import evaluate_depth_methods, prepare_depth, static_mask, write_depth
-from radar4dgs.depth.scale import (DepthWarning, FrameFit, FrameParameters, fill_from_neighbours,
-                                   fit_inverse_affine, histogram_vote, limit_metric_correction, metric_depth,
-                                   plane_votes, recover_scale)
+from radar4dgs.depth.scale import recover_scale
 from radar4dgs.depth.sky import fallback_sky_mask, mask_iou
 from radar4dgs.depth.sources import (DepthAnythingV2, DepthModelError, build_depth_model, depth_anything_available,
                                      load_depth_anything)
+from radar4dgs.depth.temporal import FrameParameters, fill_from_neighbours, limit_metric_correction
 
 __all__ = [
     "DepthAnythingV2", "DepthConfig", "DepthModelError", "DepthWarning", "FlatWorldDepth", "FrameFit",

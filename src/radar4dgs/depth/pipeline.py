@@ -27,13 +27,14 @@ from PIL import Image
 from radar4dgs.config import save_config, to_dict
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
+from radar4dgs.depth.depth_maps import confidence_map, frame_confidences, metric_depth
 from radar4dgs.depth.geometry import DirectionIndex, transform_points
-from radar4dgs.depth.scale import (DYNAMIC, DepthWarning, FrameFit, FrameParameters, confidence_map, fill_from_neighbours,
-                                   frame_confidences, limit_metric_correction, metric_depth, recover_scale,
-                                   temporal_refine)
+from radar4dgs.depth.pairs import DYNAMIC, DepthWarning, FrameFit
+from radar4dgs.depth.scale import recover_scale
 from radar4dgs.depth.sky import fallback_sky_mask
 from radar4dgs.depth.sources import (FLAT_WORLD_NOTICE, DepthModelError, build_depth_model, frame_inverse_depth,
                                      resolve_source)
+from radar4dgs.depth.temporal import FrameParameters, fill_from_neighbours, limit_metric_correction, temporal_refine
 
 SUMMARY_VERSION = 1
 
@@ -144,7 +145,7 @@ def render_frame(x: np.ndarray, image: np.ndarray | None, parameters: FrameParam
         x: (H, W) relative inverse depth.
         image: (H, W, 3) uint8, needed by the fallback sky detector only.
         parameters: the frame's ``1 / z = a x + b``.
-        confidence, x_range: from :func:`~radar4dgs.depth.scale.frame_confidences`.
+        confidence, x_range: from :func:`~radar4dgs.depth.depth_maps.frame_confidences`.
         sky: (H, W) bool prior sky mask, or None to run the fallback (or no sky, per config).
     """
     depth, valid = metric_depth(x, parameters.a, parameters.b, config.min_depth, config.max_depth)

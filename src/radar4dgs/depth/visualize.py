@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from radar4dgs.depth.scale import DYNAMIC, VALID, FrameFit
+from radar4dgs.depth.pairs import DYNAMIC, VALID, FrameFit
 
 # BGR-free RGB colours of the radar pair classes.
 INLIER, OUTLIER, REJECTED, MOVING = (40, 220, 40), (255, 40, 40), (160, 160, 160), (40, 120, 255)
