@@ -12,7 +12,7 @@ from radar4dgs.io.preview import contact_sheet, doppler_colors, radar_points_in_
 from radar4dgs.io.scene import read_scene
 
 # pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
-from test_scene import FRAMES, HEIGHT, WIDTH, write_valid_scene
+from _scene_helpers import FRAMES, HEIGHT, WIDTH, write_valid_scene
 
 
 @pytest.fixture(scope="module")
