@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+import subprocess
 import sys
 import types
 from dataclasses import dataclass, field
@@ -42,8 +44,8 @@ def echo(monkeypatch):
     module = types.ModuleType("echo_module")
     module.EchoCommand = EchoCommand
     monkeypatch.setitem(sys.modules, "echo_module", module)
-    monkeypatch.setitem(cli.COMMANDS, "echo", ("echo_module", "EchoCommand"))
-    monkeypatch.setitem(cli.COMMANDS, "echo twice", ("echo_module", "EchoCommand"))
+    monkeypatch.setitem(cli.COMMANDS, "echo", ("echo_module", "EchoCommand", "Echo."))
+    monkeypatch.setitem(cli.COMMANDS, "echo twice", ("echo_module", "EchoCommand", "Echo twice."))
 
 
 def test_preset_fills_nested_defaults_and_flags_override(echo, capsys):
@@ -78,3 +80,22 @@ def test_usage_and_unknown_command(capsys):
     assert "inspect" in capsys.readouterr().out
     assert cli.main(["fly"]) == 2
     assert "unknown command 'fly'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", list(cli.COMMANDS))
+def test_listed_summary_is_the_command_docstring(name):
+    module, attribute, summary = cli.COMMANDS[name]
+    cls = getattr(importlib.import_module(module), attribute)
+    assert summary == cli.class_summary(cls)
+
+
+@pytest.mark.parametrize("args", [["--help"], ["train", "--help"], ["prepare", "--help"], ["render", "--help"],
+                                  ["eval", "--help"], ["export", "--help"], ["view", "--help"],
+                                  ["fit-motion", "--help"], ["seg-train", "--help"]])
+def test_help_does_not_import_torch(args):
+    # Importing torch alone takes 1.5-2 s; help must answer in well under a second (issue 20).
+    code = ("import sys\nfrom radar4dgs.cli import main\ntry:\n    main(%r)\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('torch', 'torchvision', 'transformers') if m in sys.modules))" % (args,))
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "usage:" in result.stdout
+    assert result.stdout.strip().splitlines()[-1] == "[]"

@@ -3,8 +3,9 @@
 Each command is a dataclass with a ``run()`` method; tyro generates its options from the fields.
 A command whose class names ``PRESET_FIELDS`` (field name -> config dataclass) gets those fields'
 defaults from ``--preset NAME`` first, so ``--preset small --scene.noise.range-std 0.1`` overrides
-one value of the ``small`` preset. Modules are imported only for the command that runs, so
-``radar4dgs inspect`` does not pay for importing torch.
+one value of the ``small`` preset. Modules are imported only for the command that runs, and a
+command module imports its heavy dependencies (torch, OpenCV) inside ``run()``, so ``radar4dgs
+--help`` and ``radar4dgs COMMAND --help`` answer without importing torch.
 """
 
 from __future__ import annotations
@@ -18,34 +19,53 @@ import tyro
 
 from radar4dgs.config import PRESET_NAMES, preset
 
-# name -> (module, class), ordered as the pipeline runs. A name may be two words
-# ("convert aimotive"): the dispatcher matches the longest name first.
-COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("radar4dgs.apps.demo", "DemoCommand"),
-    "synth": ("radar4dgs.datasets.synth.command", "SynthCommand"),
-    "convert aimotive": ("radar4dgs.datasets.convert.aimotive", "ConvertAimotiveCommand"),
-    "convert omnihd": ("radar4dgs.datasets.convert.omnihd", "ConvertOmnihdCommand"),
-    "convert vod": ("radar4dgs.datasets.convert.vod", "ConvertVodCommand"),
-    "inspect": ("radar4dgs.apps.inspect", "InspectCommand"),
-    "seg-train": ("radar4dgs.apps.seg_train", "SegTrainCommand"),
-    "prepare": ("radar4dgs.apps.prepare", "PrepareCommand"),
-    "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand"),
-    "fit-motion": ("radar4dgs.apps.fit_motion", "FitMotionCommand"),
-    "train": ("radar4dgs.apps.train", "TrainCommand"),
-    "eval": ("radar4dgs.evaluate.reconstruction", "EvalCommand"),
-    "bench": ("radar4dgs.apps.bench", "BenchCommand"),
-    "render": ("radar4dgs.apps.render", "RenderCommand"),
-    "export": ("radar4dgs.apps.export", "ExportCommand"),
-    "view": ("radar4dgs.apps.viewer", "ViewCommand"),
+# name -> (module, class, summary), ordered as the pipeline runs. A name may be two words
+# ("convert aimotive"): the dispatcher matches the longest name first. The summary is the first
+# line of the class's docstring, written here too so that `radar4dgs --help` imports no command
+# module (tests/test_cli.py checks that the two agree).
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "demo": ("radar4dgs.apps.demo", "DemoCommand",
+        "Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, train, evaluate."),
+    "synth": ("radar4dgs.datasets.synth.command", "SynthCommand",
+        "Synthesise a procedural driving scene with ground truth (radar4dgs synth OUT --preset small --seed 1)."),
+    "convert aimotive": ("radar4dgs.datasets.convert.aimotive", "ConvertAimotiveCommand",
+        "Convert an aiMotive sequence (front camera + front radar) into a scene folder."),
+    "convert omnihd": ("radar4dgs.datasets.convert.omnihd", "ConvertOmnihdCommand",
+        "Convert frames of an OmniHD-Scenes clip (front camera, front 4D radar, LiDAR) into a scene folder."),
+    "convert vod": ("radar4dgs.datasets.convert.vod", "ConvertVodCommand",
+        "Convert a frame range of View-of-Delft (camera, 3+1D radar, optional LiDAR) into a scene folder."),
+    "inspect": ("radar4dgs.apps.inspect", "InspectCommand",
+        "Summarise a scene folder and write a contact sheet of frames with radar points coloured by v_r."),
+    "seg-train": ("radar4dgs.apps.seg_train", "SegTrainCommand",
+        "Train the radar-camera dynamic segmentation network on scenes with gt/dynamic_mask."),
+    "prepare": ("radar4dgs.apps.prepare", "PrepareCommand",
+        "Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, scene flow."),
+    "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand",
+        "Score the prepared front-end outputs of a scene against its ground truth (gt/)."),
+    "fit-motion": ("radar4dgs.apps.fit_motion", "FitMotionCommand",
+        "Fit the invertible deformation field to a scene's prepared flow and radar; report the scene-flow error."),
+    "train": ("radar4dgs.apps.train", "TrainCommand",
+        "Train the Gaussian scene (static + dynamic Gaussians, VGPT field, sky) on a prepared scene."),
+    "eval": ("radar4dgs.apps.eval", "EvalCommand",
+        "Evaluate a trained run: metrics.json, renders, a video and an HTML report."),
+    "bench": ("radar4dgs.apps.bench", "BenchCommand",
+        "Train and evaluate every method (baselines and ablations) on every scene; one table."),
+    "render": ("radar4dgs.apps.render", "RenderCommand",
+        "Re-render a trained run along a camera path: recorded, lane shift, height, bullet time or custom."),
+    "export": ("radar4dgs.apps.export", "ExportCommand",
+        "Export a trained run's Gaussians (static, or static + dynamic at one time) as a 3DGS .ply."),
+    "view": ("radar4dgs.apps.view", "ViewCommand",
+        "Browse a trained run in a web browser (viser): Gaussian splats, a time slider, CPU renders."),
 }
 
 
 def _command_class(name: str) -> type:
-    module, attribute = COMMANDS[name]
+    module, attribute = COMMANDS[name][:2]
     return getattr(importlib.import_module(module), attribute)
 
 
-def _summary(cls: type) -> str:
+def class_summary(cls: type) -> str:
+    """The first line of a command class's docstring."""
     doc = (cls.__doc__ or "").strip()
     return doc.splitlines()[0] if doc else ""
 
@@ -53,11 +73,7 @@ def _summary(cls: type) -> str:
 def _usage() -> str:
     lines = ["usage: radar4dgs COMMAND [OPTIONS]   (radar4dgs COMMAND --help for its options)", "",
              "commands:"]
-    for name in COMMANDS:
-        try:
-            summary = _summary(_command_class(name))
-        except ImportError as exc:  # a command whose optional dependency is missing
-            summary = f"(unavailable: {exc})"
+    for name, (_, _, summary) in COMMANDS.items():
         lines.append(f"  {name:<18}{summary}")
     return "\n".join(lines)
 

@@ -325,10 +325,9 @@ def test_ray_box_depth_hits_front_face():
     assert np.isinf(t[2])
 
 
-def test_seg_train_command_end_to_end(tmp_path, monkeypatch):
+def test_seg_train_command_end_to_end(tmp_path):
     from radar4dgs import cli
 
-    monkeypatch.setitem(cli.COMMANDS, "seg-train", ("radar4dgs.apps.seg_train", "SegTrainCommand"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         a, b = write_rect_scene(tmp_path / "a"), write_rect_scene(tmp_path / "b")

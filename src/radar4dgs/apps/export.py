@@ -16,11 +16,13 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Optional
+from typing import TYPE_CHECKING, Literal, Optional
 
 import numpy as np
-import torch
 import tyro
+
+if TYPE_CHECKING:
+    pass
 
 FORMATS = ("ply",)
 PARTS = ("static", "all")
@@ -55,7 +57,6 @@ def _check_options(fmt: str, part: str, time: float) -> float:
     return float(time)
 
 
-@torch.no_grad()
 def gaussians_for_export(model, part: str = "all", time: float = 0.0) -> dict[str, np.ndarray]:
     """The model's Gaussians in the PLY writer's parametrisation, static first: ``means`` (N, 3),
     ``quats`` (N, 4) unit wxyz, ``log_scales`` (N, 3), ``opacity_logits`` (N,), ``rgb`` (N, 3) in
@@ -63,24 +64,27 @@ def gaussians_for_export(model, part: str = "all", time: float = 0.0) -> dict[st
     ``time`` (the field, or a baseline's motion; static ones are the stored parameters) and a set's
     temporal visibility (PVG, bspline, ours' life spans) is folded into the opacity; the rest is the
     stored parameters."""
+    import torch  # here, not at the top: `radar4dgs export --help` should not wait for torch
+
     sets = ["static"]
     if part == "all" and model.dynamic is not None and len(model.dynamic) > 0:
         sets.append("dynamic")
     columns: dict[str, list[np.ndarray]] = {k: [] for k in ("means", "quats", "log_scales", "opacity_logits", "rgb")}
-    for name in sets:
-        gaussians = getattr(model, name)
-        active = model.set_at(name, float(time))
-        params = gaussians.params
-        opacity_logits = params["opacity_logits"]
-        if gaussians.has("log_lifespan"):
-            opacity = active["opacities"].clamp(1e-6, 1 - 1e-6)
-            opacity_logits = torch.log(opacity) - torch.log1p(-opacity)
-        # float32 is what the file stores: converting here keeps the static means bit-identical.
-        columns["means"].append(active["means"].float().cpu().numpy())
-        columns["quats"].append(active["quats"].float().cpu().numpy())
-        columns["log_scales"].append(params["log_scales"].float().cpu().numpy())
-        columns["opacity_logits"].append(opacity_logits.float().cpu().numpy())
-        columns["rgb"].append(active["colors"].float().cpu().numpy())
+    with torch.no_grad():
+        for name in sets:
+            gaussians = getattr(model, name)
+            active = model.set_at(name, float(time))
+            params = gaussians.params
+            opacity_logits = params["opacity_logits"]
+            if gaussians.has("log_lifespan"):
+                opacity = active["opacities"].clamp(1e-6, 1 - 1e-6)
+                opacity_logits = torch.log(opacity) - torch.log1p(-opacity)
+            # float32 is what the file stores: converting here keeps the static means bit-identical.
+            columns["means"].append(active["means"].float().cpu().numpy())
+            columns["quats"].append(active["quats"].float().cpu().numpy())
+            columns["log_scales"].append(params["log_scales"].float().cpu().numpy())
+            columns["opacity_logits"].append(opacity_logits.float().cpu().numpy())
+            columns["rgb"].append(active["colors"].float().cpu().numpy())
     out: dict = {k: np.concatenate(v, axis=0) for k, v in columns.items()}
     out["n_static"] = len(model.static)
     out["n_dynamic"] = len(out["means"]) - len(model.static)

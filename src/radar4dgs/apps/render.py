@@ -23,11 +23,13 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import TYPE_CHECKING, Iterator, Optional
 
 import numpy as np
-import torch
 import tyro
+
+if TYPE_CHECKING:
+    import torch
 
 from radar4dgs.apps.trajectory import CameraPose, TrajectorySpec, build_trajectory, parse_trajectory
 
@@ -71,6 +73,8 @@ def trajectory_slug(spec: TrajectorySpec, interpolate: int = 1, scale: float = 1
 
 def check_finite(out: dict, where: str) -> None:
     """Raise :class:`NonFiniteRenderError` naming ``where`` if a rendered map has NaN/inf."""
+    import torch  # here, not at the top: `radar4dgs render --help` should not wait for torch
+
     for key in _CHECKED:
         value = out[key]
         bad = ~torch.isfinite(value)
@@ -81,14 +85,16 @@ def check_finite(out: dict, where: str) -> None:
                 "holds non-finite parameters or the camera pose is degenerate")
 
 
-@torch.no_grad()
 def render_pose(run, pose: CameraPose, scale: float = 1.0) -> dict[str, torch.Tensor]:
     """Render ``pose`` with ``run``'s model (no gradient, no dropout) at ``scale`` of the recorded
     resolution: ``rgb`` (H, W, 3), ``depth`` (H, W), ``alpha`` (H, W), ``dynamic`` (H, W)."""
+    import torch
+
     from radar4dgs.evaluate.reconstruction import render_view
     from radar4dgs.model.view import camera_view
 
-    return render_view(run, camera_view(run.scene.camera, pose.world_to_camera, pose.time, scale))
+    with torch.no_grad():
+        return render_view(run, camera_view(run.scene.camera, pose.world_to_camera, pose.time, scale))
 
 
 def recorded_cameras(scene) -> tuple[np.ndarray, np.ndarray]:

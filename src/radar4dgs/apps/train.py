@@ -54,7 +54,7 @@ class TrainCommand:
             return 1
         print(f"trained: {self.out}")
         if self.eval:
-            from radar4dgs.evaluate.reconstruction import EvalCommand
+            from radar4dgs.apps.eval import EvalCommand
 
             return EvalCommand(self.out).run()
         return 0

@@ -20,22 +20,17 @@ import contextlib
 import json
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import tyro
 
-from radar4dgs.config import load_config
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
-from radar4dgs.io.scene import SceneWarning, read_mask_png, read_scene
+from radar4dgs.io.scene import SceneWarning, read_mask_png
 from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.model.config import TrainConfig
-from radar4dgs.model.scene_model import SceneModel, load_model
 from radar4dgs.model.view import View, frame_view
 from radar4dgs.model.run import HISTORY_FILE, Run, load_run
 from radar4dgs.train.trainer import LOSS_TERMS
@@ -187,22 +182,3 @@ def format_metrics(metrics: dict[str, Any]) -> str:
                      f"{fmt(m['lpips_vgg'], '.4f'):>11}{fmt(m['lpips_alex'], '.4f'):>12}{fmt(m['psnr_dyn']):>8}")
     lines.append(f"PSNR* mask: {metrics['mask_source']}; LPIPS backbones present: {metrics['lpips_available']}")
     return "\n".join(lines)
-
-
-@dataclass
-class EvalCommand:
-    """Evaluate a trained run: metrics.json, renders, a video and an HTML report."""
-
-    run_dir: tyro.conf.Positional[Path]  # the run folder written by `radar4dgs train`
-    device: str | None = None  # torch device (default: the one the run was trained on)
-    lpips: bool = True  # compute LPIPS when the backbone weights are present (null otherwise)
-    video: bool = True  # write RUN/video.mp4
-    report: bool = True  # write RUN/report.html
-
-    def run(self) -> int:
-        metrics = evaluate_run(self.run_dir, self.device, self.lpips, self.video, self.report)
-        print(format_metrics(metrics))
-        print(f"written: {self.run_dir / METRICS_FILE}, {self.run_dir / RENDERS_DIR}/"
-              + (f", {self.run_dir / VIDEO_FILE}" if self.video else "")
-              + (f", {self.run_dir / REPORT_FILE}" if self.report else ""))
-        return 0

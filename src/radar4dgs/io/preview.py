@@ -4,18 +4,15 @@ to look at (used by ``radar4dgs inspect``, the evaluation report and the segment
 from __future__ import annotations
 
 import json
-import sys
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-import tyro
 
-from radar4dgs.io.atomic import atomic_write_bytes, atomic_write_json
-from radar4dgs.io.scene import Scene, SceneWarning, read_scene
+from radar4dgs.io.atomic import atomic_write_bytes
+from radar4dgs.io.scene import Scene, SceneWarning
 
 
 def pose_speeds(scene: Scene) -> np.ndarray:

@@ -33,8 +33,7 @@ so an untrained field is the identity and does not move points.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any
 
 import torch
 from torch import Tensor, nn

@@ -20,7 +20,6 @@ the appearance, so densification clones, splits and prunes them with their Gauss
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch

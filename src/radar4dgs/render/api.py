@@ -10,16 +10,14 @@ channels get a zero background.
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from radar4dgs.render.projection import project_gaussians
 from radar4dgs.render.torch_backend import rasterize_pixels
-from radar4dgs.render.config import Backend, RENDER_MODES, RasterConfig, RenderMode
+from radar4dgs.render.config import Backend, RENDER_MODES, RenderMode
 
 
 def select_backend(backend: str, device: torch.device) -> str:

@@ -13,7 +13,7 @@ import io
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Literal
+from typing import Callable, Iterable
 
 import cv2
 import numpy as np
@@ -22,9 +22,9 @@ import torch
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
 from radar4dgs.io.scene import Scene
-from radar4dgs.segment.dataset import DynamicSource, load_radar_frame
+from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
-from radar4dgs.segment.patches import (AnchorSampling, RadarFrame, candidate_anchors, extract_patches, paste_max, patch_boxes,
+from radar4dgs.segment.patches import (RadarFrame, candidate_anchors, extract_patches, paste_max, patch_boxes,
                                        patch_side, radar_features, resize_patches, sample_anchors)
 from radar4dgs.segment.config import SegInferConfig
 

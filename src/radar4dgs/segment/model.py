@@ -22,9 +22,7 @@ width, the only one that accepts ImageNet weights).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import torch
 import torch.nn.functional as F

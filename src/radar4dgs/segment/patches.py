@@ -15,7 +15,6 @@ pixel; the same boxes serve extraction and paste-back, so the two are inverses u
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import torch

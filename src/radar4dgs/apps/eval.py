@@ -1,0 +1,30 @@
+"""``radar4dgs eval RUN``: evaluate a trained run (:mod:`radar4dgs.evaluate.reconstruction`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import tyro
+
+
+@dataclass
+class EvalCommand:
+    """Evaluate a trained run: metrics.json, renders, a video and an HTML report."""
+
+    run_dir: tyro.conf.Positional[Path]  # the run folder written by `radar4dgs train`
+    device: str | None = None  # torch device (default: the one the run was trained on)
+    lpips: bool = True  # compute LPIPS when the backbone weights are present (null otherwise)
+    video: bool = True  # write RUN/video.mp4
+    report: bool = True  # write RUN/report.html
+
+    def run(self) -> int:
+        from radar4dgs.evaluate.reconstruction import (METRICS_FILE, RENDERS_DIR, REPORT_FILE, VIDEO_FILE,
+                                                       evaluate_run, format_metrics)
+
+        metrics = evaluate_run(self.run_dir, self.device, self.lpips, self.video, self.report)
+        print(format_metrics(metrics))
+        print(f"written: {self.run_dir / METRICS_FILE}, {self.run_dir / RENDERS_DIR}/"
+              + (f", {self.run_dir / VIDEO_FILE}" if self.video else "")
+              + (f", {self.run_dir / REPORT_FILE}" if self.report else ""))
+        return 0
