@@ -9,7 +9,8 @@ import torch
 
 from radar4dgs.model.field import DeformationField, FieldConfig
 from radar4dgs.train.fit_motion import torch_threads
-from radar4dgs.metrics.losses import flow_loss, flow_residual, radar_loss, radar_residual
+from radar4dgs.metrics.losses import (binary_cross_entropy, flow_loss, flow_residual, inverse_depth_l1,
+                                     radar_loss, radar_residual)
 
 # Tiny tensors: on the shared 2-core CI machine extra torch threads only spin.
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -111,3 +112,16 @@ def test_empty_inputs_give_zero_with_graph():
     assert flow_loss(field, empty, empty, 0.0, 1.0).item() == 0.0
     nan = torch.tensor([math.nan])
     assert radar_loss(field, torch.ones(1, 3), 0.0, 1.0, 0.1, torch.zeros(3), nan).item() == 0.0
+
+
+def test_image_losses_against_closed_forms():
+    rendered = torch.tensor([[2.0, 4.0], [10.0, 1.0]])
+    target = torch.tensor([[4.0, 4.0], [float("nan"), 2.0]])
+    alpha = torch.tensor([[1.0, 1.0], [1.0, 0.0]])
+    valid = torch.ones(2, 2, dtype=torch.bool)
+    # Pixel (0, 0): |1/2 - 1/4| = 0.25; (0, 1): 0; (1, 0) NaN target; (1, 1) transparent.
+    assert float(inverse_depth_l1(rendered, alpha, target, valid)) == pytest.approx(0.125)
+    assert float(inverse_depth_l1(rendered, alpha, target, torch.zeros_like(valid))) == 0.0
+    p = torch.tensor([0.9, 0.2])
+    expected = -(math.log(0.9) + math.log(0.8)) / 2
+    assert float(binary_cross_entropy(p, torch.tensor([True, False]))) == pytest.approx(expected, rel=1e-6)

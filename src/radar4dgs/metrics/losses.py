@@ -13,6 +13,10 @@ Reduction: the paper writes sums; we return means over the (valid) points by def
 weights do not depend on how many points or Gaussians a batch holds (``reduction="sum"`` gives the
 paper's form). Each function has a pure residual form (tensors in, per-point residuals out) for
 hand-checkable tests, and a field form that evaluates the field.
+
+Also the per-pixel terms of the trainer's image supervision: :func:`inverse_depth_l1` against the
+radar-scaled depth and :func:`binary_cross_entropy` of a rendered probability (opacity, dynamic
+share) against a mask.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from radar4dgs.model.field import DeformationField
@@ -85,3 +90,18 @@ def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Ten
         t_i, t_j, dt, weight = (per_point(v, 1) for v in (t_i, t_j, dt, weight))
     residual = radar_residual(field.displacement(x, t_i, t_j), x, centre, v_r, dt)
     return _reduce(residual, weight, reduction)
+
+
+def binary_cross_entropy(probability: Tensor, target: Tensor) -> Tensor:
+    """Mean BCE of probabilities (clamped away from 0 and 1) against a bool/float target."""
+    return F.binary_cross_entropy(probability.clamp(1e-4, 1 - 1e-4), target.to(probability.dtype))
+
+
+def inverse_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor) -> Tensor:
+    """Mean ``|1 / d_rendered - 1 / d_target|`` over ``valid`` pixels with finite positive target
+    depth and some rendered opacity; 0 when there is none. All (H, W)."""
+    valid = valid & torch.isfinite(target) & (target > 0) & (alpha > 0.05)
+    if not bool(valid.any()):
+        return rendered.sum() * 0.0
+    inv_rendered = 1.0 / rendered[valid].clamp_min(0.1)
+    return (inv_rendered - 1.0 / target[valid]).abs().mean()

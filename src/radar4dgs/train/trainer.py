@@ -25,29 +25,29 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-from radar4dgs.config import config_difference, from_dict, read_config_dict, save_config, to_dict
+from radar4dgs.config import read_config_dict, save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
-from radar4dgs.io.scene import Scene, read_scene
-from radar4dgs.metrics.image import ssim_loss_value
-from radar4dgs.model.field import DeformationField
-from radar4dgs.io.scene import normalized_times
-from radar4dgs.train.fit_motion import torch_threads
-from radar4dgs.metrics.losses import flow_loss, radar_loss
+from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.config import TrainConfig
-from radar4dgs.train.data import (FrameTargets, MotionTargets, dynamic_masks, load_frame_targets,
-                                  load_motion_targets)
-from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
-from radar4dgs.model.gaussians import GaussianInitConfig, GaussianSet, backproject_frames, to_canonical
-from radar4dgs.model.scene_model import SceneModel
-from radar4dgs.model.motion_models import OffsetField
+from radar4dgs.model.gaussians import GaussianSet, backproject_frames
 from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, HISTORY_FILE, LAST_CHECKPOINT, MODEL_FILE, RUN_FILE
+from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
+from radar4dgs.train.data import FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
+from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
+from radar4dgs.train.fit_motion import torch_threads
+from radar4dgs.train.model_init import (dynamic_gaussians, gaussian_kwargs, new_field, offset_field, scene_extent,
+                                        with_lifespans)
+from radar4dgs.train.objective import LOSS_TERMS, image_losses, motion_losses, total_loss
+from radar4dgs.train.optimizers import make_optimizer, make_optimizers, set_learning_rates
+from radar4dgs.train.run_config import run_config_difference, same_run_config
 
-# The named terms of the training loss, as logged in history.json.
-LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
+# The public entry point of training; LOSS_TERMS and the run-config checks are re-exported for
+# the callers that compare runs (evaluate, bench).
+__all__ = ["LOSS_TERMS", "RunState", "Trainer", "TrainingError", "run_config_difference", "same_run_config",
+           "train_run"]
 
 
 class TrainingError(RuntimeError):
@@ -56,14 +56,6 @@ class TrainingError(RuntimeError):
 
 # --------------------------------------------------------------------------------------------
 # Pure pieces
-
-
-def scene_extent(scene: Scene) -> float:
-    """3DGS's scene extent: 1.1 x the largest distance of a camera centre from their mean (m),
-    at least 1 m (a standing camera still needs a length scale)."""
-    centres = np.stack([np.linalg.inv(scene.world_to_camera(i))[:3, 3] for i in range(len(scene))])
-    radius = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) if len(centres) else 0.0
-    return max(1.1 * radius, 1.0)
 
 
 def step_generator(seed: int, step: int) -> torch.Generator:
@@ -76,81 +68,6 @@ def frame_order(seed: int, epoch: int, n: int) -> np.ndarray:
     return np.random.default_rng([int(seed), int(epoch)]).permutation(n)
 
 
-def exponential_lr(start: float, end: float, progress: float) -> float:
-    """Log-linear interpolation from ``start`` to ``end`` at ``progress`` in [0, 1]."""
-    progress = min(max(progress, 0.0), 1.0)
-    if start <= 0 or end <= 0:
-        return start
-    return math.exp(math.log(start) * (1 - progress) + math.log(end) * progress)
-
-
-def binary_cross_entropy(probability: Tensor, target: Tensor) -> Tensor:
-    """Mean BCE of probabilities (clamped away from 0 and 1) against a bool/float target."""
-    return F.binary_cross_entropy(probability.clamp(1e-4, 1 - 1e-4), target.to(probability.dtype))
-
-
-def inverse_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor) -> Tensor:
-    """Mean ``|1 / d_rendered - 1 / d_target|`` over ``valid`` pixels with finite positive target
-    depth and some rendered opacity; 0 when there is none. All (H, W)."""
-    valid = valid & torch.isfinite(target) & (target > 0) & (alpha > 0.05)
-    if not bool(valid.any()):
-        return rendered.sum() * 0.0
-    inv_rendered = 1.0 / rendered[valid].clamp_min(0.1)
-    return (inv_rendered - 1.0 / target[valid]).abs().mean()
-
-
-def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConfig, stage: int,
-                 ignore_dynamic: bool) -> dict[str, Tensor]:
-    """The image terms (unweighted) of one iteration. With ``ignore_dynamic`` (stage 1 of the full
-    method) the dynamic-mask pixels of the target take the render's own (detached) colour, so they
-    give neither L1 nor SSIM gradient, and they are left out of the depth term."""
-    rgb, image = render["rgb"], target.image
-    if ignore_dynamic:
-        image = torch.where(target.dynamic[..., None], rgb.detach(), image)
-    losses = {"l1": (rgb - image).abs().mean(), "ssim": 1.0 - ssim_loss_value(rgb, image)}
-    depth_valid = ~target.sky & ~target.dynamic if ignore_dynamic else ~target.sky
-    losses["depth"] = inverse_depth_l1(render["depth"], render["alpha"], target.depth, depth_valid)
-    losses["sky"] = binary_cross_entropy(render["alpha"], ~target.sky)
-    if stage == 3:
-        losses["object"] = binary_cross_entropy(render["dynamic"], target.dynamic)
-    return losses
-
-
-def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
-                  generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
-    """``L_flow`` and ``L_rad`` on a random minibatch of the field's supervision."""
-    def draw(n: int) -> Tensor:
-        return torch.randint(n, (min(batch, n),), generator=generator)
-
-    def tensor(array: np.ndarray) -> Tensor:
-        return torch.as_tensor(array, dtype=dtype, device=device)
-
-    losses = {}
-    if motion.flow is not None:
-        f = motion.flow
-        i = draw(len(f)).numpy()
-        losses["flow"] = flow_loss(deformation, tensor(f.x_i[i]), tensor(f.x_j[i]), tensor(f.t_i[i]), tensor(f.t_j[i]))
-    if motion.radar is not None:
-        r = motion.radar
-        i = draw(len(r)).numpy()
-        losses["radar"] = radar_loss(deformation, tensor(r.x[i]), tensor(r.t_i[i]), tensor(r.t_j[i]),
-                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]))
-    return losses
-
-
-def loss_weights(config: TrainConfig) -> dict[str, float]:
-    """The weight of each named loss term (the keys are :data:`LOSS_TERMS`)."""
-    c = config.losses
-    return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
-            "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
-
-
-def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
-    """The weighted sum of the named terms (absent terms count 0)."""
-    weights = loss_weights(config)
-    return sum(weights[name] * value for name, value in losses.items())
-
-
 def check_finite(losses: dict[str, Tensor], step: int) -> None:
     bad = {name: float(v.detach()) for name, v in losses.items() if not torch.isfinite(v)}
     if bad:
@@ -158,75 +75,9 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
                             f"(resume with --resume after changing the config)")
 
 
-# Where a run computes, not what it computes: a run may resume with other values.
-RUNTIME_FIELDS = ("threads", "device")
-
-
-def with_legacy_values(saved: dict) -> dict:
-    """A saved TrainConfig dict with the fields it predates set to what a run of its time did,
-    where that is not the field's default: no life span (``dynamic_lifespan`` 0) and dynamic
-    pixels on the background's grid (``init.dynamic_pixel_stride`` = ``init.pixel_stride``)."""
-    out = dict(saved)
-    out.setdefault("dynamic_lifespan", 0.0)
-    init = out.get("init")
-    if isinstance(init, dict) and "dynamic_pixel_stride" not in init:
-        out["init"] = {**init, "dynamic_pixel_stride": init.get("pixel_stride", GaussianInitConfig.pixel_stride)}
-    return out
-
-
-def run_config_difference(saved: TrainConfig | dict, config: TrainConfig) -> list[str]:
-    """Where ``saved`` (a config, or its dict as saved) and ``config`` describe different runs, as
-    :func:`radar4dgs.config.config_difference` lines, ignoring :data:`RUNTIME_FIELDS`. A field that
-    a saved dict lacks (a run from before the field existed) counts as what such a run did
-    (:func:`with_legacy_values`), else as its default."""
-    if isinstance(saved, dict):
-        saved = from_dict(TrainConfig, with_legacy_values(saved), partial=False)
-    return config_difference(to_dict(saved), to_dict(config), ignore=RUNTIME_FIELDS)
-
-
-def same_run_config(saved: TrainConfig | dict, config: TrainConfig) -> bool:
-    """True when ``saved`` and ``config`` describe the same run (:func:`run_config_difference`)."""
-    return not run_config_difference(saved, config)
-
-
 def psnr_of(rgb: Tensor, image: Tensor) -> float:
     mse = float(((rgb.detach().clamp(0, 1) - image) ** 2).mean())
     return 10 * math.log10(1.0 / max(mse, 1e-10))
-
-
-# --------------------------------------------------------------------------------------------
-# Building the model
-
-
-def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points: np.ndarray,
-              device: torch.device, dtype: torch.dtype) -> DeformationField:
-    """A fresh field (seeded), normalised to the region of its supervision (or of the dynamic
-    points when there is none)."""
-    torch.manual_seed(config.seed)
-    deformation = DeformationField(config.field).to(device=device, dtype=dtype)
-    region = []
-    if motion is not None and motion.flow is not None:
-        region += [motion.flow.x_i, motion.flow.x_j]
-    if motion is not None and motion.radar is not None:
-        region.append(motion.radar.x)
-    deformation.fit_normalization(np.concatenate(region) if region else fallback_points)
-    return deformation
-
-
-def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:
-    i = config.init
-    return {"init_opacity": i.init_opacity, "knn_k": i.knn_k, "min_scale": i.min_scale,
-            "max_scale": i.max_scale, "device": device, "dtype": dtype}
-
-
-def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformation: DeformationField,
-                      config: TrainConfig, device, dtype) -> GaussianSet:
-    """Dynamic Gaussians at the canonical positions of their frames' world points."""
-    dyn = points["dynamic"]
-    world = points["points"][dyn]
-    canonical = to_canonical(world, times[points["frame"][dyn]], deformation).double().cpu().numpy() \
-        if len(world) else world
-    return GaussianSet.from_points(canonical, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
 
 
 # --------------------------------------------------------------------------------------------
@@ -242,85 +93,6 @@ class RunState:
     optimizers: dict[str, torch.optim.Optimizer]
     stats: dict[str, GradientStats]
     history: list[dict] = field(default_factory=list)
-
-
-def gaussian_lrs(config: TrainConfig, extent: float, progress: float) -> dict[str, float]:
-    """Learning rate of every Gaussian parameter (the motion ones are used only by sets that
-    have them); lengths scale with the scene extent."""
-    o, b = config.optim, config.baselines
-    return {"means": exponential_lr(o.means_lr, o.means_lr_final, progress) * extent, "quats": o.quats_lr,
-            "log_scales": o.scales_lr, "opacity_logits": o.opacity_lr, "colors": o.colors_lr,
-            "velocity": b.velocity_lr * extent, "tau": b.time_lr, "log_lifespan": b.lifespan_lr,
-            "control": b.control_lr * extent}
-
-
-def adam(params: Any, **kwargs: Any) -> torch.optim.Adam:
-    """Adam, fused where torch has the kernel: one pass over each tensor instead of a dozen; on the
-    CPU about 9x faster for the sky map's six million texels. ``params`` as torch.optim.Adam's."""
-    params = list(params)
-    groups = params if params and isinstance(params[0], dict) else [{"params": params}]
-    devices = {p.device.type for group in groups for p in group["params"]}
-    return torch.optim.Adam(params, fused=devices <= {"cpu", "cuda"}, **kwargs)
-
-
-def make_optimizer(gaussians: GaussianSet, config: TrainConfig, extent: float, prefix: str) -> torch.optim.Adam:
-    return adam(gaussians.param_groups(gaussian_lrs(config, extent, 0.0), prefix=prefix), eps=1e-15)
-
-
-def make_optimizers(model: SceneModel, config: TrainConfig, extent: float) -> dict[str, torch.optim.Optimizer]:
-    """One optimizer per part ``model`` has: static, sky, and where present field, offsets, dynamic."""
-    optimizers: dict[str, torch.optim.Optimizer] = {
-        "static": make_optimizer(model.static, config, extent, "static."),
-        "sky": adam(model.sky.parameters(), lr=config.optim.sky_lr),
-    }
-    if model.field is not None:
-        optimizers["field"] = adam(model.field.parameters(), lr=config.optim.field_lr)
-    if model.offsets is not None:
-        optimizers["offsets"] = adam(model.offsets.parameters(), lr=config.baselines.offset_lr)
-    if model.dynamic is not None:
-        optimizers["dynamic"] = make_optimizer(model.dynamic, config, extent, "dynamic.")
-    return optimizers
-
-
-def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float,
-                   **motion: Tensor) -> GaussianSet:
-    """``gaussians`` plus a life peak at the time of the frame each was seen in and the initial
-    life span ``lifespan`` (normalised time; PVG, bspline, ours' dynamic set), and any other
-    motion parameters."""
-    n = len(gaussians)
-    like = gaussians.params["means"]
-    tau = torch.as_tensor(np.asarray(frame_times, dtype=np.float64)).to(like)
-    log_lifespan = torch.full((n,), math.log(lifespan)).to(like)
-    return gaussians.with_motion(tau=tau, log_lifespan=log_lifespan, **motion)
-
-
-def offset_field(config: TrainConfig, points: np.ndarray, device, dtype) -> OffsetField:
-    """A fresh (seeded) Deformable-GS offset MLP normalised to the points' bounding box."""
-    torch.manual_seed(config.seed)
-    if len(points):
-        lo, hi = points.min(axis=0), points.max(axis=0)
-        centre, scale = (lo + hi) / 2.0, max(float((hi - lo).max()) / 2.0, 1.0)
-    else:
-        centre, scale = np.zeros(3), 1.0
-    return OffsetField(config.baselines, centre, scale).to(device=device, dtype=dtype)
-
-
-def decayed_network_lr(config: TrainConfig, start: float, progress: float) -> float:
-    """The field's (and the offset MLP's) learning rate at ``progress``."""
-    return start * config.optim.field_lr_final_ratio ** progress
-
-
-def set_learning_rates(state: RunState, config: TrainConfig, extent: float, step: int) -> None:
-    progress = step / max(config.optim.iterations - 1, 1)
-    lrs = gaussian_lrs(config, extent, progress)
-    for name in ("static", "dynamic"):
-        if name in state.optimizers:
-            for group in state.optimizers[name].param_groups:
-                group["lr"] = lrs[group["name"].rsplit(".", 1)[-1]]
-    for name, start in (("field", config.optim.field_lr), ("offsets", config.baselines.offset_lr)):
-        if name in state.optimizers:
-            for group in state.optimizers[name].param_groups:
-                group["lr"] = decayed_network_lr(config, start, progress)
 
 
 class Trainer:
@@ -508,7 +280,7 @@ class Trainer:
         stage = config.stage_at(step)
         if config.method == "ours" and stage >= 2 and state.model.dynamic is None:
             self._start_dynamic(state)
-        set_learning_rates(state, config, self.extent, step)
+        set_learning_rates(state.optimizers, config, self.extent, step)
         n = len(self.targets)
         targets = self.coarse_targets if step < config.coarse_until * config.optim.iterations else self.targets
         target = targets[int(frame_order(config.seed, step // n, n)[step % n])]

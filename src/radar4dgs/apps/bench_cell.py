@@ -1,0 +1,101 @@
+"""Running the bench's cells: one cell brought to its metrics (reusing what its run folder holds),
+a cell's failure recorded instead of raised, and the grid's cells one after the other or in a
+process pool."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any, Callable, Mapping, Sequence
+
+from radar4dgs.apps.bench_spec import BenchError, CellSpec
+from radar4dgs.apps.bench_table import SPLITS
+from radar4dgs.train.variants import variant_config
+
+METRICS_FILE = "metrics.json"  # as radar4dgs.evaluate.reconstruction, which imports torch
+
+
+def cell_summary(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of a run's metrics.json the bench keeps: both splits' summaries, the Gaussian
+    count and the PSNR* mask source (the per-frame lists stay in the run folder)."""
+    return {**{split: dict(metrics[split]) for split in SPLITS},
+            **{key: metrics.get(key) for key in ("method", "num_gaussians", "mask_source", "lpips_available")}}
+
+
+def run_cell(spec: CellSpec) -> dict[str, Any]:
+    """Bring one cell to a metrics.json and return ``{"action", "metrics"}`` (:func:`cell_summary`).
+
+    action: "skipped" (metrics.json present), "evaluated" (model.pt present), "resumed" (from
+    checkpoints/last.pt) or "trained". A run folder trained with another configuration than the
+    bench's (other iterations, say) raises: its numbers would not belong in this table.
+    """
+    from radar4dgs.config import read_config_dict
+    from radar4dgs.evaluate.reconstruction import evaluate_run
+    from radar4dgs.train.fit_motion import torch_threads
+    from radar4dgs.model.config import TrainConfig
+    from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
+    from radar4dgs.train.run_config import run_config_difference
+    from radar4dgs.train.trainer import train_run
+
+    config = variant_config(spec.preset, spec.method, **spec.overrides)
+    run = spec.run_dir
+    if (run / METRICS_FILE).is_file():
+        state = "skipped"
+    elif (run / MODEL_FILE).is_file():
+        state = "evaluated"
+    elif (run / CHECKPOINT_DIR / LAST_CHECKPOINT).is_file():
+        state = "resumed"
+    else:
+        state = "trained"
+    if state != "trained" and (run / CONFIG_FILE).is_file():
+        changed = run_config_difference(read_config_dict(TrainConfig, run / CONFIG_FILE), config)
+        if changed:
+            raise BenchError(f"{run}: trained with another configuration ({'; '.join(changed[:4])}); "
+                             "delete the folder or bench into another --out")
+    if state == "skipped":
+        return {"action": state, "metrics": cell_summary(json.loads((run / METRICS_FILE).read_text()))}
+    if state in ("trained", "resumed"):
+        train_run(spec.scene_path, spec.prepared, run, config, resume=state == "resumed", progress=spec.progress)
+    with torch_threads(config.threads):
+        metrics = evaluate_run(run, lpips=spec.lpips, video=False, report=False, progress=spec.progress)
+    return {"action": state, "metrics": cell_summary(metrics)}
+
+
+def run_guarded(runner: Callable[[CellSpec], Mapping[str, Any]], spec: CellSpec) -> dict[str, Any]:
+    """``runner(spec)`` as a bench.json cell record; an exception becomes a failed record (with
+    its traceback) instead of ending the grid."""
+    started = time.perf_counter()
+    record: dict[str, Any] = {"scene": spec.scene, "method": spec.method, "run": str(spec.run_dir)}
+    try:
+        result = runner(spec)
+    except Exception as exc:  # noqa: BLE001 - any failure of one cell is that cell's result
+        return {**record, "status": "failed", "seconds": time.perf_counter() - started,
+                "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+    return {**record, "status": "ok", "action": result["action"], "seconds": time.perf_counter() - started,
+            "metrics": result["metrics"]}
+
+
+def run_grid(specs: Sequence[CellSpec], runner: Callable[[CellSpec], Mapping[str, Any]], jobs: int,
+             on_done: Callable[[dict[str, Any]], None]) -> None:
+    """Run every cell, one after the other (jobs 1) or in ``jobs`` worker processes, calling
+    ``on_done(record)`` in this process as each finishes. ``runner`` must be picklable (a
+    module-level function) when jobs > 1."""
+    if jobs <= 1 or len(specs) <= 1:
+        for spec in specs:
+            on_done(run_guarded(runner, spec))
+        return
+    # spawn: a forked child would inherit torch's thread pools and locks in whatever state they are.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=context) as pool:
+        futures = {pool.submit(run_guarded, runner, spec): spec for spec in specs}
+        for future in as_completed(futures):
+            try:
+                record = future.result()
+            except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory)
+                spec = futures[future]
+                record = {"scene": spec.scene, "method": spec.method, "run": str(spec.run_dir),
+                          "status": "failed", "seconds": None, "error": f"{type(exc).__name__}: {exc}"}
+            on_done(record)

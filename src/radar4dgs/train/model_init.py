@@ -1,0 +1,80 @@
+"""The parts a run's scene model starts from: the scene's length scale, a fresh deformation field,
+the dynamic Gaussians in its canonical space, life spans, and the Deformable-GS offset MLP."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from radar4dgs.io.scene import Scene
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.field import DeformationField
+from radar4dgs.model.gaussians import GaussianSet, to_canonical
+from radar4dgs.model.motion_models import OffsetField
+from radar4dgs.train.data import MotionTargets
+
+
+def scene_extent(scene: Scene) -> float:
+    """3DGS's scene extent: 1.1 x the largest distance of a camera centre from their mean (m),
+    at least 1 m (a standing camera still needs a length scale)."""
+    centres = np.stack([np.linalg.inv(scene.world_to_camera(i))[:3, 3] for i in range(len(scene))])
+    radius = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) if len(centres) else 0.0
+    return max(1.1 * radius, 1.0)
+
+
+def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points: np.ndarray,
+              device: torch.device, dtype: torch.dtype) -> DeformationField:
+    """A fresh field (seeded), normalised to the region of its supervision (or of the dynamic
+    points when there is none)."""
+    torch.manual_seed(config.seed)
+    deformation = DeformationField(config.field).to(device=device, dtype=dtype)
+    region = []
+    if motion is not None and motion.flow is not None:
+        region += [motion.flow.x_i, motion.flow.x_j]
+    if motion is not None and motion.radar is not None:
+        region.append(motion.radar.x)
+    deformation.fit_normalization(np.concatenate(region) if region else fallback_points)
+    return deformation
+
+
+def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:
+    i = config.init
+    return {"init_opacity": i.init_opacity, "knn_k": i.knn_k, "min_scale": i.min_scale,
+            "max_scale": i.max_scale, "device": device, "dtype": dtype}
+
+
+def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformation: DeformationField,
+                      config: TrainConfig, device, dtype) -> GaussianSet:
+    """Dynamic Gaussians at the canonical positions of their frames' world points."""
+    dyn = points["dynamic"]
+    world = points["points"][dyn]
+    canonical = to_canonical(world, times[points["frame"][dyn]], deformation).double().cpu().numpy() \
+        if len(world) else world
+    return GaussianSet.from_points(canonical, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
+
+
+def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float,
+                   **motion: Tensor) -> GaussianSet:
+    """``gaussians`` plus a life peak at the time of the frame each was seen in and the initial
+    life span ``lifespan`` (normalised time; PVG, bspline, ours' dynamic set), and any other
+    motion parameters."""
+    n = len(gaussians)
+    like = gaussians.params["means"]
+    tau = torch.as_tensor(np.asarray(frame_times, dtype=np.float64)).to(like)
+    log_lifespan = torch.full((n,), math.log(lifespan)).to(like)
+    return gaussians.with_motion(tau=tau, log_lifespan=log_lifespan, **motion)
+
+
+def offset_field(config: TrainConfig, points: np.ndarray, device, dtype) -> OffsetField:
+    """A fresh (seeded) Deformable-GS offset MLP normalised to the points' bounding box."""
+    torch.manual_seed(config.seed)
+    if len(points):
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        centre, scale = (lo + hi) / 2.0, max(float((hi - lo).max()) / 2.0, 1.0)
+    else:
+        centre, scale = np.zeros(3), 1.0
+    return OffsetField(config.baselines, centre, scale).to(device=device, dtype=dtype)

@@ -1,0 +1,74 @@
+"""The training loss of one iteration: its named terms, their weights and their weighted sum.
+
+``(1 - l_r) L1 + l_r (1 - SSIM) + l_d L_invdepth + l_obj BCE(dyn, mask) [stage 3] + l_sky BCE(alpha,
+not sky) + w_flow L_flow + w_rad L_rad`` (the trainer's module docstring has the stages).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from radar4dgs.metrics.image import ssim_loss_value
+from radar4dgs.metrics.losses import binary_cross_entropy, flow_loss, inverse_depth_l1, radar_loss
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.field import DeformationField
+from radar4dgs.train.data import FrameTargets, MotionTargets
+
+# The named terms of the training loss, as logged in history.json.
+LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
+
+
+def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConfig, stage: int,
+                 ignore_dynamic: bool) -> dict[str, Tensor]:
+    """The image terms (unweighted) of one iteration. With ``ignore_dynamic`` (stage 1 of the full
+    method) the dynamic-mask pixels of the target take the render's own (detached) colour, so they
+    give neither L1 nor SSIM gradient, and they are left out of the depth term."""
+    rgb, image = render["rgb"], target.image
+    if ignore_dynamic:
+        image = torch.where(target.dynamic[..., None], rgb.detach(), image)
+    losses = {"l1": (rgb - image).abs().mean(), "ssim": 1.0 - ssim_loss_value(rgb, image)}
+    depth_valid = ~target.sky & ~target.dynamic if ignore_dynamic else ~target.sky
+    losses["depth"] = inverse_depth_l1(render["depth"], render["alpha"], target.depth, depth_valid)
+    losses["sky"] = binary_cross_entropy(render["alpha"], ~target.sky)
+    if stage == 3:
+        losses["object"] = binary_cross_entropy(render["dynamic"], target.dynamic)
+    return losses
+
+
+def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
+                  generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
+    """``L_flow`` and ``L_rad`` on a random minibatch of the field's supervision."""
+    def draw(n: int) -> Tensor:
+        return torch.randint(n, (min(batch, n),), generator=generator)
+
+    def tensor(array: np.ndarray) -> Tensor:
+        return torch.as_tensor(array, dtype=dtype, device=device)
+
+    losses = {}
+    if motion.flow is not None:
+        f = motion.flow
+        i = draw(len(f)).numpy()
+        losses["flow"] = flow_loss(deformation, tensor(f.x_i[i]), tensor(f.x_j[i]), tensor(f.t_i[i]), tensor(f.t_j[i]))
+    if motion.radar is not None:
+        r = motion.radar
+        i = draw(len(r)).numpy()
+        losses["radar"] = radar_loss(deformation, tensor(r.x[i]), tensor(r.t_i[i]), tensor(r.t_j[i]),
+                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]))
+    return losses
+
+
+def loss_weights(config: TrainConfig) -> dict[str, float]:
+    """The weight of each named loss term (the keys are :data:`LOSS_TERMS`)."""
+    c = config.losses
+    return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
+            "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
+
+
+def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
+    """The weighted sum of the named terms (absent terms count 0)."""
+    weights = loss_weights(config)
+    return sum(weights[name] * value for name, value in losses.items())

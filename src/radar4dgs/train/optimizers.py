@@ -1,0 +1,80 @@
+"""The optimisers of a scene model's parts and the learning-rate schedule of a run: exponential
+decay of the Gaussian means' rate (in units of the scene extent), of the field's and the offset
+MLP's rates; every other rate constant."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.gaussians import GaussianSet
+from radar4dgs.model.scene_model import SceneModel
+
+
+def exponential_lr(start: float, end: float, progress: float) -> float:
+    """Log-linear interpolation from ``start`` to ``end`` at ``progress`` in [0, 1]."""
+    progress = min(max(progress, 0.0), 1.0)
+    if start <= 0 or end <= 0:
+        return start
+    return math.exp(math.log(start) * (1 - progress) + math.log(end) * progress)
+
+
+def gaussian_lrs(config: TrainConfig, extent: float, progress: float) -> dict[str, float]:
+    """Learning rate of every Gaussian parameter (the motion ones are used only by sets that
+    have them); lengths scale with the scene extent."""
+    o, b = config.optim, config.baselines
+    return {"means": exponential_lr(o.means_lr, o.means_lr_final, progress) * extent, "quats": o.quats_lr,
+            "log_scales": o.scales_lr, "opacity_logits": o.opacity_lr, "colors": o.colors_lr,
+            "velocity": b.velocity_lr * extent, "tau": b.time_lr, "log_lifespan": b.lifespan_lr,
+            "control": b.control_lr * extent}
+
+
+def adam(params: Any, **kwargs: Any) -> torch.optim.Adam:
+    """Adam, fused where torch has the kernel: one pass over each tensor instead of a dozen; on the
+    CPU about 9x faster for the sky map's six million texels. ``params`` as torch.optim.Adam's."""
+    params = list(params)
+    groups = params if params and isinstance(params[0], dict) else [{"params": params}]
+    devices = {p.device.type for group in groups for p in group["params"]}
+    return torch.optim.Adam(params, fused=devices <= {"cpu", "cuda"}, **kwargs)
+
+
+def make_optimizer(gaussians: GaussianSet, config: TrainConfig, extent: float, prefix: str) -> torch.optim.Adam:
+    return adam(gaussians.param_groups(gaussian_lrs(config, extent, 0.0), prefix=prefix), eps=1e-15)
+
+
+def make_optimizers(model: SceneModel, config: TrainConfig, extent: float) -> dict[str, torch.optim.Optimizer]:
+    """One optimizer per part ``model`` has: static, sky, and where present field, offsets, dynamic."""
+    optimizers: dict[str, torch.optim.Optimizer] = {
+        "static": make_optimizer(model.static, config, extent, "static."),
+        "sky": adam(model.sky.parameters(), lr=config.optim.sky_lr),
+    }
+    if model.field is not None:
+        optimizers["field"] = adam(model.field.parameters(), lr=config.optim.field_lr)
+    if model.offsets is not None:
+        optimizers["offsets"] = adam(model.offsets.parameters(), lr=config.baselines.offset_lr)
+    if model.dynamic is not None:
+        optimizers["dynamic"] = make_optimizer(model.dynamic, config, extent, "dynamic.")
+    return optimizers
+
+
+def decayed_network_lr(config: TrainConfig, start: float, progress: float) -> float:
+    """The field's (and the offset MLP's) learning rate at ``progress``."""
+    return start * config.optim.field_lr_final_ratio ** progress
+
+
+def set_learning_rates(optimizers: dict[str, torch.optim.Optimizer], config: TrainConfig, extent: float,
+                       step: int) -> None:
+    """Set the rates of iteration ``step`` in ``optimizers`` (named as :func:`make_optimizers`'s)."""
+    progress = step / max(config.optim.iterations - 1, 1)
+    lrs = gaussian_lrs(config, extent, progress)
+    for name in ("static", "dynamic"):
+        if name in optimizers:
+            for group in optimizers[name].param_groups:
+                group["lr"] = lrs[group["name"].rsplit(".", 1)[-1]]
+    for name, start in (("field", config.optim.field_lr), ("offsets", config.baselines.offset_lr)):
+        if name in optimizers:
+            for group in optimizers[name].param_groups:
+                group["lr"] = decayed_network_lr(config, start, progress)
