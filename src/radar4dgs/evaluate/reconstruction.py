@@ -32,8 +32,7 @@ from radar4dgs.io.scene import SceneWarning, read_mask_png
 from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.view import View, frame_view
-from radar4dgs.model.run import HISTORY_FILE, Run, load_run
-from radar4dgs.train.trainer import LOSS_TERMS
+from radar4dgs.model.run import HISTORY_FILE, LOSS_TERMS, Run, load_run
 
 METRICS_FILE = "metrics.json"
 RENDERS_DIR = "renders"

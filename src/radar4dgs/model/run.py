@@ -5,7 +5,7 @@ RUN/
   run.json        {"scene": ..., "prepared": ...}: the inputs the run was trained on
   config.json     the resolved :class:`~radar4dgs.model.config.TrainConfig`
   model.pt        the final :class:`~radar4dgs.model.scene_model.SceneModel`
-  history.json    the logged loss terms and timings per step
+  history.json    the logged loss terms (LOSS_TERMS) and timings per step
   checkpoints/last.pt   the latest resumable state
 """
 
@@ -27,6 +27,8 @@ MODEL_FILE = "model.pt"
 CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.pt"
 HISTORY_FILE = "history.json"
+# The named terms of the training loss, as logged in history.json.
+LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
 
 
 @dataclass

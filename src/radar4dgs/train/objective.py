@@ -18,9 +18,6 @@ from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.train.data import FrameTargets, MotionTargets
 
-# The named terms of the training loss, as logged in history.json.
-LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
-
 
 def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConfig, stage: int,
                  ignore_dynamic: bool) -> dict[str, Tensor]:
@@ -62,7 +59,7 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
 
 
 def loss_weights(config: TrainConfig) -> dict[str, float]:
-    """The weight of each named loss term (the keys are :data:`LOSS_TERMS`)."""
+    """The weight of each named loss term (the keys are :data:`radar4dgs.model.run.LOSS_TERMS`)."""
     c = config.losses
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
