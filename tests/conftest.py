@@ -40,3 +40,27 @@ def tiny_trained_run(tmp_path_factory) -> Path:
                         init={"points_per_frame": 800, "max_static": 4000, "max_dynamic": 800})
         train_run(scene, scene / "prepared", root / "run", config, progress=False)
     return root
+
+
+@pytest.fixture(scope="session")
+def motion_scene(tmp_path_factory):
+    """A tiny synthetic scene (seed 2) for the motion tests: flow, association, fit, command."""
+    from radar4dgs.config import preset
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.io.scene import read_scene
+
+    root = tmp_path_factory.mktemp("motion") / "scene"
+    synthesize(preset(SynthConfig, "tiny", seed=2), root, overwrite=True, progress=False)
+    return read_scene(root)
+
+
+@pytest.fixture(scope="session")
+def motion_prepared(motion_scene, tmp_path_factory):
+    """``motion_scene``'s prepared flow, from ground-truth depth and masks (the flow stage alone)."""
+    from radar4dgs.config import preset
+    from radar4dgs.motion.config import FlowConfig
+    from radar4dgs.motion.flow import prepare_flow
+
+    folder = tmp_path_factory.mktemp("prepared")
+    prepare_flow(motion_scene, folder, preset(FlowConfig, "tiny", depth_source="oracle", mask_source="oracle"))
+    return folder

@@ -1,11 +1,11 @@
-"""Tile binning of the torch backend against a plain per-tile construction."""
+"""Tile binning (render.tile_bins) against a plain per-tile construction."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from radar4dgs.render import torch_backend as tb
+from radar4dgs.render import tile_bins as tb
 
 
 def _naive_bins(means2d, radii, depths, ts, width, height):

@@ -1,0 +1,42 @@
+"""The scene level of the flow stage on a tiny synthetic scene: the prepared flow/ folder, its
+front-end metrics, and the errors for missing prepared inputs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from radar4dgs.motion.association import load_radar_dynamics
+from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.flow import frame_pairs, load_flow_pairs, prepare_flow
+from radar4dgs.motion.metrics import motion_frontend_metrics
+
+
+def test_prepare_flow_writes_pairs_of_training_frames(motion_scene, motion_prepared):
+    pairs = load_flow_pairs(motion_prepared)
+    expected = frame_pairs(motion_scene, skip_test_frames=True)
+    assert [(int(p["index_i"]), int(p["index_j"])) for p in pairs] == expected
+    assert not set(motion_scene.test_indices) & {i for pair in expected for i in pair}
+    h, w = motion_scene.camera.height, motion_scene.camera.width
+    total = 0
+    for pair in pairs:
+        assert pair["flow"].shape == (h, w, 2) and pair["consistent"].shape == (h, w)
+        assert pair["points_i"].shape == pair["points_j"].shape == (len(pair["pixels"]), 3)
+        total += len(pair["pixels"])
+    assert total > 0
+    assert json.loads((motion_prepared / "flow" / "config.json").read_text())["depth_source"] == "oracle"
+    metrics = motion_frontend_metrics(motion_scene, motion_prepared)
+    assert metrics["flow2d_pairs"] > 0
+    assert 0 <= metrics["flow2d_epe_dynamic"] < 5.0  # pixels, on 160x90
+    assert 0 <= metrics["sceneflow_epe_dynamic"] < 1.0  # metres
+
+
+def test_missing_prepared_inputs_name_the_folder_and_the_option(motion_scene, tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"depth.*depth_source='oracle'"):
+        prepare_flow(motion_scene, tmp_path, FlowConfig())
+    with pytest.raises(FileNotFoundError, match=r"masks.*mask_source='oracle'"):
+        prepare_flow(motion_scene, tmp_path, FlowConfig(depth_source="oracle"))
+    with pytest.raises(FileNotFoundError, match=r"radar.*radar_source='oracle'"):
+        load_radar_dynamics(motion_scene, 0, "prepared", tmp_path)
+    assert not (tmp_path / "flow").exists()
