@@ -1,13 +1,11 @@
-"""`radar4dgs inspect`: the summary's numbers and the radar projection against hand computation."""
+"""Scene previews: the summary's numbers and the radar projection against hand computation."""
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pytest
 
-from radar4dgs.cli import main
 from radar4dgs.io.preview import contact_sheet, doppler_colors, radar_points_in_camera, summarize_scene
 from radar4dgs.io.scene import read_scene
 
@@ -53,11 +51,3 @@ def test_doppler_colours_are_symmetric():
 def test_contact_sheet_shape(scene):
     sheet = contact_sheet(scene, num_frames=3, tile_width=64)
     assert sheet.dtype == np.uint8 and sheet.shape == (2 * 48 + 28, 128, 3)
-
-
-def test_command_writes_sheet_and_json(scene, tmp_path, capsys):
-    assert main(["inspect", str(scene.root), "--sheet", str(tmp_path / "s.png"), "--json", str(tmp_path / "s.json")]) == 0
-    out = capsys.readouterr().out
-    assert "frames     6 over 0.50 s" in out and "median 8" in out
-    assert (tmp_path / "s.png").stat().st_size > 0
-    assert json.loads((tmp_path / "s.json").read_text())["frames"] == FRAMES
