@@ -41,8 +41,8 @@ TARGETS = {"affine_absrel_max": 0.08, "paper_scale_error_median_max": 0.02, "sca
 def load_or_make_scene(folder: Path, preset_name: str, seed: int):
     """The synthetic scene of ``seed``, generated into ``folder`` when absent (cached)."""
     from radar4dgs.config import preset
-    from radar4dgs.io.scene import read_scene
     from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.io.scene import read_scene
 
     if not (folder / "scene.json").is_file():
         try:
@@ -106,7 +106,6 @@ def figure(scene, masks, config, frame: int, path: Path) -> None:
     """Rows affine / paper of radar pairs, metric depth and error for one frame."""
     from PIL import Image
 
-    from radar4dgs.io.atomic import atomic_write_bytes
     from radar4dgs.depth import recover_scale
     from radar4dgs.depth.depth_maps import frame_confidences
     from radar4dgs.depth.geometry import transform_points
@@ -114,6 +113,7 @@ def figure(scene, masks, config, frame: int, path: Path) -> None:
     from radar4dgs.depth.sources import to_inverse
     from radar4dgs.depth.temporal import FrameParameters
     from radar4dgs.depth.visualize import depth_figure
+    from radar4dgs.io.atomic import atomic_write_bytes
 
     x = to_inverse(scene.load_optional("priors/mono_depth", frame), "inverse-depth")
     points = transform_points(scene.radar_to_camera(frame), scene.load_radar(frame).xyz)

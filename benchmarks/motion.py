@@ -24,10 +24,10 @@ from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import read_scene
 from radar4dgs.model.field import DeformationField, FieldConfig, randomize_
-from radar4dgs.train.fit_motion import MotionConfig, run_fit
 from radar4dgs.motion.flow import prepare_flow
 from radar4dgs.motion.metrics import motion_frontend_metrics
 from radar4dgs.motion.optical_flow import time_dis
+from radar4dgs.train.fit_motion import MotionConfig, run_fit
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
 MODES = {"flow_only": (True, False), "radar_only": (False, True), "both": (True, True)}
@@ -58,8 +58,8 @@ def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
 def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool) -> tuple[Path, Path, dict]:
     """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
     the radar stage runs and depth and masks come from the scene's gt/ (an upper bound)."""
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
 
     scene_dir = work / f"{preset_name}-s{seed}"
     if not (scene_dir / "scene.json").is_file():

@@ -30,11 +30,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare  # noqa: E402
 from radar4dgs.config import preset, to_dict  # noqa: E402
+from radar4dgs.evaluate.frontend import evaluate_radar  # noqa: E402
 from radar4dgs.io.atomic import atomic_write_json  # noqa: E402
 from radar4dgs.io.scene import SceneWarning, read_scene  # noqa: E402
-from radar4dgs.evaluate.frontend import evaluate_radar  # noqa: E402
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare  # noqa: E402
 from radar4dgs.radar import RadarConfig, classify_dynamic, estimate_ego_motion, expected_radar_velocity  # noqa: E402
 from radar4dgs.radar.process import load_radar_outputs  # noqa: E402
 

@@ -37,8 +37,8 @@ FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotiv
 
 def prepare_scene(seed: int, preset_name: str, work: Path) -> tuple[Path, Path, float]:
     """The demo's layout: work/seed<N>/{scene, prepared}."""
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
@@ -120,8 +120,8 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
 
 
 def aimotive(work: Path, preset_name: str) -> dict:
-    from radar4dgs.datasets.convert.aimotive import convert_aimotive
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.convert.aimotive import convert_aimotive
 
     scene = work / "aimotive" / "scene"
     started = time.perf_counter()

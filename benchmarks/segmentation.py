@@ -22,17 +22,16 @@ import platform
 import sys
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from radar4dgs.apps.seg_train import parse_seeds, synth_scenes
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import SceneWarning, read_scene
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
-from radar4dgs.apps.seg_train import parse_seeds, synth_scenes
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.infer import DEFAULT_CARD, SegInferConfig, frame_rng, load_model, segment_frame
 from radar4dgs.segment.metrics import ground_truth_masks, mask_scores

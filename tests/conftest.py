@@ -24,11 +24,11 @@ def tiny_trained_run(tmp_path_factory) -> Path:
     """A folder with ``scene/`` (tiny synthetic, 8 frames, seed 4, prepared in ``scene/prepared``)
     and ``run/`` (20 training iterations; not evaluated). Tests may add files to the run folder but
     must not change what is there."""
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
     from radar4dgs.config import preset
     from radar4dgs.datasets.synth import SynthConfig, synthesize
-    from radar4dgs.train.fit_motion import torch_threads
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
     from radar4dgs.model.config import TrainConfig
+    from radar4dgs.train.fit_motion import torch_threads
     from radar4dgs.train.trainer import train_run
 
     root = tmp_path_factory.mktemp("tiny-run")

@@ -7,12 +7,11 @@ import io
 import json
 
 import pytest
-
 from _bench_helpers import fake_metrics, make_scene
 
-from radar4dgs.cli import main
 from radar4dgs.apps.bench import BenchCommand, run_bench
 from radar4dgs.apps.bench_spec import BenchScene
+from radar4dgs.cli import main
 
 
 def test_unknown_method_is_refused_listing_the_methods(tmp_path, capsys):

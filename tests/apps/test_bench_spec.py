@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-
 import pytest
-
 from _bench_helpers import make_scene
 
 from radar4dgs.apps.bench_spec import BenchError, check_scene, dotted, parse_overrides, scene_labels

@@ -6,7 +6,6 @@ import csv
 import io
 
 import pytest
-
 from _bench_helpers import fake_metrics
 
 from radar4dgs.apps.bench_table import COLUMN_NAMES, csv_table, markdown_table, plot_ablation, scene_rows, summarize

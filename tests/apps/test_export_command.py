@@ -7,13 +7,12 @@ import numpy as np
 import pytest
 import torch
 
+from radar4dgs.apps.export import default_export_path, export_run
+from radar4dgs.apps.ply import read_gaussians_ply
 from radar4dgs.cli import main
 from radar4dgs.evaluate.reconstruction import load_run
-from radar4dgs.apps.ply import read_gaussians_ply
-from radar4dgs.apps.export import default_export_path, export_run
-from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.motion_models import temporal_visibility
-
+from radar4dgs.model.scene_model import load_model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 
-import pytest
-
 # tests/io's helpers: pytest puts that folder on sys.path only for its own tests.
 import sys
 from pathlib import Path
+
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "io"))
 from _scene_helpers import FRAMES, write_valid_scene  # noqa: E402

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from radar4dgs.apps.ply import SH_C0, read_gaussians_ply, write_gaussians_ply
-from radar4dgs.apps.ply import property_names
+from radar4dgs.apps.ply import SH_C0, property_names, read_gaussians_ply, write_gaussians_ply
 
 torch.set_num_threads(1)
 

@@ -11,8 +11,8 @@ import pytest
 
 from radar4dgs.cli import main
 from radar4dgs.config import preset
-from radar4dgs.io.scene import read_scene
 from radar4dgs.datasets.synth import SynthConfig, synthesize
+from radar4dgs.io.scene import read_scene
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "radar"))
 from _radar_helpers import write_tiny_scene  # noqa: E402

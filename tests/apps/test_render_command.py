@@ -12,11 +12,11 @@ import pytest
 import torch
 from PIL import Image
 
+from radar4dgs.apps.render import NonFiniteRenderError, render_trajectory, trajectory_slug
+from radar4dgs.apps.trajectory import CameraPose, parse_trajectory, write_custom_trajectory
 from radar4dgs.cli import main
 from radar4dgs.evaluate.reconstruction import evaluate_run, load_run, to_uint8
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.apps.render import NonFiniteRenderError, render_trajectory, trajectory_slug
-from radar4dgs.apps.trajectory import CameraPose, parse_trajectory, write_custom_trajectory
 from radar4dgs.model.view import frame_view
 
 N_FRAMES = 8  # frames of the shared tiny run (tests/conftest.py)

@@ -15,14 +15,20 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from radar4dgs.apps.viewer import (
+    DISPLAY_RENDER,
+    DISPLAY_SPLATS,
+    ViewerUnavailable,
+    camera_to_viser,
+    pinhole_intrinsics,
+    require_viser,
+    splat_covariances,
+    viser_to_world_to_camera,
+)
 from radar4dgs.cli import main
 from radar4dgs.evaluate.reconstruction import load_run, to_uint8
-from radar4dgs.apps.viewer import (DISPLAY_RENDER, DISPLAY_SPLATS, ViewerUnavailable, camera_to_viser,
-                                     pinhole_intrinsics, require_viser, splat_covariances,
-                                     viser_to_world_to_camera)
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.view import frame_view
-
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

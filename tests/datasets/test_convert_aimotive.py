@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from radar4dgs.cli import main
-from radar4dgs.datasets.convert.aimotive import (CAMERA, RADAR, box_labels, convert_aimotive, opencv_axes,
-                                             radar_points)
+from radar4dgs.datasets.convert.aimotive import CAMERA, RADAR, box_labels, convert_aimotive, opencv_axes, radar_points
 from radar4dgs.io.scene import SceneError, read_scene
 
 FIXTURE = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "aimotive-night"

@@ -9,14 +9,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from _convert_helpers import rigid, yaw
 
+from radar4dgs.apps.inspect import InspectCommand
+from radar4dgs.apps.prepare import run_prepare
 from radar4dgs.cli import main
 from radar4dgs.datasets.convert.omnihd import CAMERA, LIDAR, RADAR, convert_omnihd
-from radar4dgs.apps.inspect import InspectCommand
 from radar4dgs.io.preview import summarize_scene
 from radar4dgs.io.scene import SceneError, read_scene
-from radar4dgs.apps.prepare import run_prepare
-from _convert_helpers import rigid, yaw
 
 CLIP = "1693714828633418"
 T0 = int(CLIP)

@@ -9,13 +9,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from _convert_helpers import rigid, yaw
 
+from radar4dgs.apps.prepare import run_prepare
 from radar4dgs.cli import main
 from radar4dgs.datasets.convert.vod import convert_vod, parse_range, sequence_breaks
 from radar4dgs.io.preview import summarize_scene
 from radar4dgs.io.scene import SceneError, read_scene
-from radar4dgs.apps.prepare import run_prepare
-from _convert_helpers import rigid, yaw
 
 WIDTH, HEIGHT = 64, 48
 P2 = np.array([[50.0, 0.0, 32.0, 0.0], [0.0, 50.0, 24.0, 0.0], [0.0, 0.0, 1.0, 0.0]])

@@ -10,8 +10,16 @@ from radar4dgs.config import preset
 from radar4dgs.datasets.synth import SynthConfig
 from radar4dgs.datasets.synth import camera as C
 from radar4dgs.datasets.synth import radar as R
-from radar4dgs.datasets.synth.raycast import (azimuth_windows, cast, pinhole_windows, ray_box, ray_sphere,
-                                          rot_x, rot_y, rot_z)
+from radar4dgs.datasets.synth.raycast import (
+    azimuth_windows,
+    cast,
+    pinhole_windows,
+    ray_box,
+    ray_sphere,
+    rot_x,
+    rot_y,
+    rot_z,
+)
 from radar4dgs.datasets.synth.world import build_world
 
 finite = st.floats(-5.0, 5.0, allow_nan=False)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 from radar4dgs.depth.geometry import pixel_grid, pixel_rays
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 
 WIDTH, HEIGHT = 160, 90
 K = np.array([[100.0, 0.0, 79.5], [0.0, 100.0, 44.5], [0.0, 0.0, 1.0]])

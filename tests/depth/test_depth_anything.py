@@ -7,10 +7,17 @@ import warnings
 
 import numpy as np
 import pytest
-
 from _depth_helpers import write_scene
+
+from radar4dgs.depth import (
+    DepthAnythingV2,
+    DepthConfig,
+    DepthModelError,
+    DepthWarning,
+    load_depth_anything,
+    prepare_depth,
+)
 from radar4dgs.io.scene import read_scene
-from radar4dgs.depth import DepthAnythingV2, DepthConfig, DepthModelError, DepthWarning, load_depth_anything, prepare_depth
 
 
 @pytest.fixture(autouse=True)

@@ -12,14 +12,22 @@ import numpy as np
 import pytest
 
 from radar4dgs.config import preset
-from radar4dgs.io.scene import read_mask_png, read_scene
 from radar4dgs.datasets.synth import SynthConfig, synthesize
-from radar4dgs.depth import (DepthConfig, DepthWarning, FlatWorldDepth, FrameFit, depth_anything_available,
-                             fill_from_neighbours, flat_world_depth, limit_metric_correction, prepare_depth)
+from radar4dgs.depth import (
+    DepthConfig,
+    DepthWarning,
+    FrameFit,
+    depth_anything_available,
+    fill_from_neighbours,
+    flat_world_depth,
+    limit_metric_correction,
+    prepare_depth,
+)
 from radar4dgs.depth.depth_maps import frame_confidences
 from radar4dgs.depth.flat_world import lidar_ground_z
 from radar4dgs.depth.pairs import RadarPairs
 from radar4dgs.depth.sources import resolve_source
+from radar4dgs.io.scene import read_mask_png, read_scene
 
 FIXTURE = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "aimotive-night"
 
@@ -197,8 +205,8 @@ def test_auto_falls_back_to_flat_world_without_prior_or_weights(synthetic, tmp_p
 def test_aimotive_prepares_radar_and_depth(tmp_path, monkeypatch):
     import huggingface_hub.constants
 
-    from radar4dgs.datasets.convert.aimotive import convert_aimotive
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.convert.aimotive import convert_aimotive
 
     monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_CACHE", str(tmp_path / "hf-cache"))
     root = convert_aimotive(FIXTURE, tmp_path / "aim", scale=0.25, progress=False)

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _depth_helpers import K, points_on_plane, tilted_plane_depth
+
 from radar4dgs.depth import DepthConfig, recover_scale
 from radar4dgs.depth.geometry import DirectionIndex
 from radar4dgs.depth.pairs import DYNAMIC, VALID
-
 
 NORMAL, OFFSET = (0.2, 0.5, 1.0), 10.0
 

@@ -7,12 +7,12 @@ import warnings
 
 import numpy as np
 import pytest
+from _depth_helpers import write_scene
 from PIL import Image
 
-from _depth_helpers import write_scene
 from radar4dgs.config import load_config
-from radar4dgs.io.scene import read_scene
 from radar4dgs.depth import DepthConfig, DepthWarning, depth_frontend_metrics, evaluate_depth_methods, prepare_depth
+from radar4dgs.io.scene import read_scene
 
 
 def _all_static(scene):

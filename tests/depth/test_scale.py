@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-
 from _depth_helpers import K, points_on_plane, road_and_wall_depth, surface_points, tilted_plane_depth
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from radar4dgs.depth import DepthConfig, metric_depth, recover_scale
 from radar4dgs.depth.geometry import DirectionIndex, radar_to_camera, transform_points
 

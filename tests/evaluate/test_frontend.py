@@ -8,10 +8,10 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "radar"))
 from _radar_helpers import write_tiny_scene  # noqa: E402
 
-from radar4dgs.cli import main  # noqa: E402
-from radar4dgs.io.scene import read_scene  # noqa: E402
-from radar4dgs.evaluate.frontend import SECTIONS, evaluate_frontend, evaluate_radar  # noqa: E402
 from radar4dgs.apps.prepare import run_prepare  # noqa: E402
+from radar4dgs.cli import main  # noqa: E402
+from radar4dgs.evaluate.frontend import SECTIONS, evaluate_frontend, evaluate_radar  # noqa: E402
+from radar4dgs.io.scene import read_scene  # noqa: E402
 
 
 def test_metrics_on_a_scene_with_gt(tmp_path):

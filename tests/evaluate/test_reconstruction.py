@@ -12,7 +12,6 @@ from PIL import Image
 from radar4dgs.cli import main
 from radar4dgs.evaluate.reconstruction import evaluate_run, format_metrics, load_run
 
-
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 

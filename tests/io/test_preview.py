@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
-from radar4dgs.io.preview import contact_sheet, doppler_colors, radar_points_in_camera, summarize_scene
-from radar4dgs.io.scene import read_scene
-
 # pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
 from _scene_helpers import FRAMES, HEIGHT, WIDTH, write_valid_scene
+
+from radar4dgs.io.preview import contact_sheet, doppler_colors, radar_points_in_camera, summarize_scene
+from radar4dgs.io.scene import read_scene
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radar4dgs.io.scene import read_scene
-
 # pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
 from _scene_helpers import FRAMES, HEIGHT, WIDTH, pose
+
+from radar4dgs.io.scene import read_scene
 
 
 def test_round_trip_keeps_everything(valid_scene):

@@ -7,13 +7,13 @@ import json
 
 import numpy as np
 import pytest
+
+# pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
+from _scene_helpers import HEIGHT, WIDTH, edit_json
 from PIL import Image
 
 from radar4dgs.io.scene_format import SceneError
 from radar4dgs.io.scene_read import read_scene
-
-# pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
-from _scene_helpers import HEIGHT, WIDTH, edit_json
 
 
 def test_scene_written_by_another_tool_loads(tmp_path):

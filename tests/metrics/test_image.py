@@ -4,12 +4,12 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 # Imported here, at collection, so that its one-time cost (seconds: it loads torchvision's model
 # zoo) is not charged to whichever test happens to call ssim or LpipsScorer first.
 import torchmetrics.functional.image  # noqa: F401
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import radar4dgs.metrics.image as im
 from radar4dgs.metrics.image import (

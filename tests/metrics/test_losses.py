@@ -7,10 +7,16 @@ import math
 import pytest
 import torch
 
+from radar4dgs.metrics.losses import (
+    binary_cross_entropy,
+    flow_loss,
+    flow_residual,
+    inverse_depth_l1,
+    radar_loss,
+    radar_residual,
+)
 from radar4dgs.model.field import DeformationField, FieldConfig
 from radar4dgs.train.fit_motion import torch_threads
-from radar4dgs.metrics.losses import (binary_cross_entropy, flow_loss, flow_residual, inverse_depth_l1,
-                                     radar_loss, radar_residual)
 
 # Tiny tensors: on the shared 2-core CI machine extra torch threads only spin.
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import pytest
 import torch
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from radar4dgs.config import preset
-from radar4dgs.model.field import (DeformationField, FieldConfig, fourier_features, normalization_from_points,
-                                    randomize_)
+from radar4dgs.model.field import DeformationField, FieldConfig, fourier_features, normalization_from_points, randomize_
 
 # The field's matmuls are tiny; on the shared 2-core CI machine extra torch threads only spin.
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -7,14 +7,20 @@ import pytest
 import torch
 from PIL import Image
 
+from radar4dgs.apps.prepare import PrepareConfig, read_scene, run_prepare
 from radar4dgs.config import preset
 from radar4dgs.datasets.synth import SynthConfig, synthesize
-from radar4dgs.model.field import DeformationField
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.apps.prepare import PrepareConfig, read_scene, run_prepare
-from radar4dgs.model.gaussians import (GaussianInitConfig, GaussianSet, backproject_frame,
-                                       backproject_frames, initialize_gaussians, knn_log_scales,
-                                       to_canonical)
+from radar4dgs.model.field import DeformationField
+from radar4dgs.model.gaussians import (
+    GaussianInitConfig,
+    GaussianSet,
+    backproject_frame,
+    backproject_frames,
+    initialize_gaussians,
+    knn_log_scales,
+    to_canonical,
+)
 
 
 @pytest.fixture(scope="module")

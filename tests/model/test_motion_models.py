@@ -12,10 +12,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from radar4dgs.model.config import DensifyConfig
-from radar4dgs.train.densify import GradientStats, densify_and_prune
 from radar4dgs.model.gaussians import GaussianSet
-from radar4dgs.model.motion_models import (BaselineConfig, OffsetField, bspline_means, bspline_weights,
-                                           fourier_features, pvg_means, temporal_visibility)
+from radar4dgs.model.motion_models import (
+    BaselineConfig,
+    OffsetField,
+    bspline_means,
+    bspline_weights,
+    fourier_features,
+    pvg_means,
+    temporal_visibility,
+)
+from radar4dgs.train.densify import GradientStats, densify_and_prune
 
 
 @settings(max_examples=60, deadline=None)

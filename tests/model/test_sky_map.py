@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from radar4dgs.apps.prepare import read_scene
 from radar4dgs.config import preset
 from radar4dgs.datasets.synth import SynthConfig, synthesize
-from radar4dgs.apps.prepare import read_scene
 from radar4dgs.model.sky import SkyEnvironment, camera_ray_directions
 
 

@@ -5,9 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radar4dgs.motion.association import (RadarDynamics, associate_nearest, associate_velocities,
-                                          compensated_radial_velocity, load_radar_dynamics,
-                                          oracle_radar_velocity)
+from radar4dgs.motion.association import (
+    RadarDynamics,
+    associate_nearest,
+    associate_velocities,
+    compensated_radial_velocity,
+    load_radar_dynamics,
+    oracle_radar_velocity,
+)
 
 
 def test_association_nearest_within_gate():

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from _flow_helpers import texture
 
 from radar4dgs.motion.optical_flow import build_raft, consistency_mask, dis_flow, load_raft, raft_flow

@@ -5,10 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from _flow_helpers import texture
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from _flow_helpers import texture
 
 from radar4dgs.motion.optical_flow import dis_flow
 from radar4dgs.motion.rigid import object_translation, rigid_object_flow

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-
 from _radar_helpers import directions
+
 from radar4dgs.radar import RadarConfig
 from radar4dgs.radar.doppler import angle_jacobians, angular_weights, band_sq, inliers_of, unit_directions
 

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-
 from _radar_helpers import directions, mixed_scan, static_scan
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from radar4dgs.radar import RadarConfig, classify_dynamic, dynamic_threshold, estimate_ego_motion
 
 V_S = np.array([12.0, -0.4, 0.2])

@@ -1,6 +1,6 @@
 import numpy as np
-
 from _radar_helpers import directions
+
 from radar4dgs.radar import RadarConfig
 from radar4dgs.radar.doppler import angle_jacobians
 from radar4dgs.radar.least_squares import covariance, least_squares, min_inlier_singular, normal_equations

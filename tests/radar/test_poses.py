@@ -1,9 +1,8 @@
 import numpy as np
 import pytest
-
 from _radar_helpers import RADAR_TO_EGO
-from radar4dgs.radar.poses import (ego_motion_from_radar, fill_gaps, heading_offset, integrate_poses,
-                                   poses_from_radar)
+
+from radar4dgs.radar.poses import ego_motion_from_radar, fill_gaps, heading_offset, integrate_poses, poses_from_radar
 
 
 def _radar_velocity(v_ego, w, mount):

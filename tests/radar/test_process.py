@@ -3,12 +3,12 @@ import warnings
 
 import numpy as np
 import pytest
-
 from _radar_helpers import write_tiny_scene
+
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.cli import main
 from radar4dgs.config import load_config
 from radar4dgs.io.scene import read_scene
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.radar import RadarConfig, load_radar_outputs, prepare_radar
 from radar4dgs.radar.process import load_radar_dynamics_flags
 

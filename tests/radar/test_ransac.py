@@ -1,6 +1,6 @@
 import numpy as np
-
 from _radar_helpers import directions
+
 from radar4dgs.radar import RadarConfig
 from radar4dgs.radar.doppler import angle_jacobians, angular_weights
 from radar4dgs.radar.ransac import _needed_iterations, _solve_minimal, ransac

@@ -1,6 +1,6 @@
 import numpy as np
-
 from _radar_helpers import directions
+
 from radar4dgs.radar import RadarConfig
 from radar4dgs.radar.velocity_model import choose_dof, planar_basis, vz_observable
 

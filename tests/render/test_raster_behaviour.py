@@ -7,10 +7,10 @@ import sys
 
 import pytest
 import torch
-from conftest import PARAMS, call, grads_of, make_scene
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import PARAMS, call, grads_of, make_scene
 from radar4dgs.render import RasterConfig, rasterize, select_backend
 from radar4dgs.render.reference import reference_rasterize
 

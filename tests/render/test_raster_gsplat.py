@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from conftest import PARAMS, grads_of, make_scene
 
+from conftest import PARAMS, grads_of, make_scene
 from radar4dgs.render import rasterize
 
 cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-from conftest import PARAMS, grads_of, make_scene
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import PARAMS, grads_of, make_scene
 from radar4dgs.render import rasterize
 from radar4dgs.render.reference import reference_rasterize
 

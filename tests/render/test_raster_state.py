@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from conftest import grads_of, make_scene
 
+from conftest import grads_of, make_scene
 from radar4dgs.render import rasterize
 
 

@@ -14,11 +14,26 @@ import torch
 from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWarning, SceneWriter, read_scene
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame
 from radar4dgs.segment.dataset import TrainFrame, load_radar_frame, load_train_frames
-from radar4dgs.segment.infer import (FrameSegmentation, SegInferConfig, frame_rng, prepare_masks, segment_frame)
-from radar4dgs.segment.model import (NUM_RADAR_FEATURES, RadarCameraSegNet, SegModelConfig, checkpoint_payload,
-                                     linear_attention, load_pretrained_backbone, model_from_checkpoint)
-from radar4dgs.segment.patches import (RadarFrame, extract_patches, make_radar_frame, paste_max, patch_boxes,
-                                       patch_side, radar_features, sample_anchors)
+from radar4dgs.segment.infer import SegInferConfig, frame_rng, prepare_masks, segment_frame
+from radar4dgs.segment.model import (
+    NUM_RADAR_FEATURES,
+    RadarCameraSegNet,
+    SegModelConfig,
+    checkpoint_payload,
+    linear_attention,
+    load_pretrained_backbone,
+    model_from_checkpoint,
+)
+from radar4dgs.segment.patches import (
+    RadarFrame,
+    extract_patches,
+    make_radar_frame,
+    paste_max,
+    patch_boxes,
+    patch_side,
+    radar_features,
+    sample_anchors,
+)
 from radar4dgs.segment.train import SegTrainConfig, segmentation_loss, train_segmentation, training_patches
 
 TINY = SegModelConfig(**SegModelConfig.PRESETS["tiny"])

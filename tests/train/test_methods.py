@@ -11,9 +11,9 @@ import torch
 from radar4dgs.config import preset, to_dict
 from radar4dgs.io.scene import read_scene
 from radar4dgs.model.config import TrainConfig
-from radar4dgs.train.data import BASELINE_MASK_DIR, dynamic_masks
 from radar4dgs.model.gaussians import GaussianInitConfig, backproject_frames
 from radar4dgs.model.scene_model import load_model
+from radar4dgs.train.data import BASELINE_MASK_DIR, dynamic_masks
 from radar4dgs.train.trainer import train_run
 from radar4dgs.train.variants import METHOD_NAMES, VARIANTS, apply_variant, variant_config
 

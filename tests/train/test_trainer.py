@@ -2,23 +2,22 @@
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 import torch
 
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.config import preset
 from radar4dgs.datasets.synth import SynthConfig, synthesize
-from radar4dgs.train.fit_motion import torch_threads
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.model.config import TrainConfig
-from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
 from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
-from radar4dgs.train.trainer import TrainingError, Trainer, frame_order, psnr_of, step_generator, train_run
+from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
+from radar4dgs.train.fit_motion import torch_threads
+from radar4dgs.train.trainer import Trainer, TrainingError, frame_order, psnr_of, step_generator, train_run
 
 
 @pytest.fixture(autouse=True)

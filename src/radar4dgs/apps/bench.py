@@ -27,8 +27,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 from radar4dgs.apps.bench_cell import run_cell, run_grid
-from radar4dgs.apps.bench_spec import (BenchError, BenchScene, CellSpec, check_methods, parse_overrides,
-                                       resolve_scenes)
+from radar4dgs.apps.bench_spec import BenchError, BenchScene, CellSpec, check_methods, parse_overrides, resolve_scenes
 from radar4dgs.apps.bench_table import PLOT_FILE, TABLE_CSV, TABLE_MD, summarize, write_outputs
 from radar4dgs.config import PresetName
 from radar4dgs.io.atomic import atomic_write_json

@@ -34,9 +34,9 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     """
     from radar4dgs.config import read_config_dict
     from radar4dgs.evaluate.reconstruction import evaluate_run
-    from radar4dgs.train.fit_motion import torch_threads
     from radar4dgs.model.config import TrainConfig
     from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
+    from radar4dgs.train.fit_motion import torch_threads
     from radar4dgs.train.run_config import run_config_difference
     from radar4dgs.train.trainer import train_run
 

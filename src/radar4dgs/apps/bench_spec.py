@@ -135,8 +135,8 @@ def scene_labels(paths: Sequence[Path], reserved: Sequence[str] = ()) -> list[st
 def synth_scene(seed: int, preset_name: str, root: Path, log: Callable[[str], None]) -> BenchScene:
     """Synthesize and prepare seed ``seed`` into ``root/seed<N>/{scene,prepared}``; a scene that
     exists is reused and only its stale prepare stages rerun."""
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
 
     scene = root / f"seed{seed}" / "scene"
     prepared = root / f"seed{seed}" / "prepared"

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from radar4dgs.config import PresetName, preset
 
+
 @dataclass
 class DemoCommand:
     """Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, train, evaluate."""
@@ -18,9 +19,9 @@ class DemoCommand:
     fresh: bool = False  # regenerate the scene even if OUT/scene exists
 
     def run(self) -> int:
+        from radar4dgs.datasets.synth import SynthConfig, synthesize
         from radar4dgs.io.preview import contact_sheet, format_summary, save_png, summarize_scene
         from radar4dgs.io.scene import read_scene
-        from radar4dgs.datasets.synth import SynthConfig, synthesize
 
         started = time.perf_counter()
         scene_dir = self.out / "scene"
@@ -37,8 +38,8 @@ class DemoCommand:
         sheet = save_png(self.out / "inspect.png", contact_sheet(scene))
         print(f"    contact sheet: {sheet}")
 
-        from radar4dgs.evaluate.frontend import evaluate_frontend, format_report
         from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+        from radar4dgs.evaluate.frontend import evaluate_frontend, format_report
         from radar4dgs.io.atomic import atomic_write_json
 
         prepared = self.out / "prepared"

@@ -19,8 +19,14 @@ class EvalCommand:
     report: bool = True  # write RUN/report.html
 
     def run(self) -> int:
-        from radar4dgs.evaluate.reconstruction import (METRICS_FILE, RENDERS_DIR, REPORT_FILE, VIDEO_FILE,
-                                                       evaluate_run, format_metrics)
+        from radar4dgs.evaluate.reconstruction import (
+            METRICS_FILE,
+            RENDERS_DIR,
+            REPORT_FILE,
+            VIDEO_FILE,
+            evaluate_run,
+            format_metrics,
+        )
 
         metrics = evaluate_run(self.run_dir, self.device, self.lpips, self.video, self.report)
         print(format_metrics(metrics))

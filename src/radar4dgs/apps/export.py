@@ -97,8 +97,8 @@ def export_run(run_dir, fmt: str = "ply", part: str = "all", time: float = 0.0, 
     :func:`default_export_path`); the model is loaded on ``device`` (default CPU). Raises
     ValueError on a bad format, part or time (before anything is loaded) and FileNotFoundError
     when the folder has no ``model.pt``."""
-    from radar4dgs.model.run import MODEL_FILE, Run
     from radar4dgs.apps.ply import write_gaussians_ply
+    from radar4dgs.model.run import MODEL_FILE, Run
     from radar4dgs.model.scene_model import load_model
 
     time = _check_options(fmt, part, time)

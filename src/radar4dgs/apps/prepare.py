@@ -20,9 +20,9 @@ import tyro
 from tqdm import tqdm
 
 from radar4dgs.config import PresetName, save_config, to_dict
+from radar4dgs.depth.config import DepthConfig
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.scene import Scene, SceneError, read_scene
-from radar4dgs.depth.config import DepthConfig
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import run_flow_stage
 from radar4dgs.radar.config import RadarConfig

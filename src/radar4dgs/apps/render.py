@@ -112,12 +112,12 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
     along ``trajectory``; see the module docstring for the outputs. Raises ValueError on a bad spec
     or option, FileNotFoundError on an incomplete run, :class:`NonFiniteRenderError` on NaN pixels
     (nothing is left behind then)."""
+    from radar4dgs.apps.trajectory import write_custom_trajectory
+    from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, RENDERS_DIR, to_uint8
+    from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
     from radar4dgs.io.atomic import atomic_directory
     from radar4dgs.io.preview import save_png
-    from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, RENDERS_DIR, to_uint8
     from radar4dgs.model.run import Run, load_run
-    from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
-    from radar4dgs.apps.trajectory import write_custom_trajectory
     from radar4dgs.model.view import resized_size
 
     if isinstance(interpolate, bool) or not isinstance(interpolate, int) or interpolate < 1:

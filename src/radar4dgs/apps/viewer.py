@@ -257,8 +257,8 @@ class Viewer:
     def render_camera(self, wxyz: Any, position: Any, fov_y: float, aspect: float) -> np.ndarray:
         """(H, W, 3) uint8 render by the model of a viser camera (``wxyz``, ``position``, vertical
         ``fov_y`` radians, ``aspect`` = W / H) at :attr:`render_height` pixels, current time."""
-        from radar4dgs.evaluate.reconstruction import to_uint8
         from radar4dgs.apps.render import check_finite
+        from radar4dgs.evaluate.reconstruction import to_uint8
         from radar4dgs.model.view import View
 
         height = self.render_height

@@ -20,8 +20,13 @@ from radar4dgs.depth.paper_scale import histogram_vote, plane_votes
 from radar4dgs.depth.pipeline import evaluate_depth_methods, prepare_depth, static_mask, write_depth
 from radar4dgs.depth.scale import recover_scale
 from radar4dgs.depth.sky import fallback_sky_mask, mask_iou
-from radar4dgs.depth.sources import (DepthAnythingV2, DepthModelError, build_depth_model, depth_anything_available,
-                                     load_depth_anything)
+from radar4dgs.depth.sources import (
+                                     DepthAnythingV2,
+                                     DepthModelError,
+                                     build_depth_model,
+                                     depth_anything_available,
+                                     load_depth_anything,
+)
 from radar4dgs.depth.temporal import FrameParameters, fill_from_neighbours, limit_metric_correction
 
 __all__ = [

@@ -27,8 +27,8 @@ from typing import Sequence
 
 import numpy as np
 
-from radar4dgs.io.scene import read_mask_png
 from radar4dgs.depth.sky import mask_iou
+from radar4dgs.io.scene import read_mask_png
 
 # A frame counts as "pure scale" when its log depth ratios spread less than this (0.2 %).
 PURE_SCALE_TOLERANCE = 2e-3

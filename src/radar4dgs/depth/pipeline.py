@@ -25,16 +25,21 @@ import numpy as np
 from PIL import Image
 
 from radar4dgs.config import save_config, to_dict
-from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.depth.depth_maps import confidence_map, frame_confidences, metric_depth
 from radar4dgs.depth.geometry import DirectionIndex, transform_points
 from radar4dgs.depth.pairs import DYNAMIC, DepthWarning, FrameFit
 from radar4dgs.depth.scale import recover_scale
 from radar4dgs.depth.sky import fallback_sky_mask
-from radar4dgs.depth.sources import (FLAT_WORLD_NOTICE, DepthModelError, build_depth_model, frame_inverse_depth,
-                                     resolve_source)
+from radar4dgs.depth.sources import (
+    FLAT_WORLD_NOTICE,
+    DepthModelError,
+    build_depth_model,
+    frame_inverse_depth,
+    resolve_source,
+)
 from radar4dgs.depth.temporal import FrameParameters, fill_from_neighbours, limit_metric_correction, temporal_refine
+from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 
 SUMMARY_VERSION = 1
 

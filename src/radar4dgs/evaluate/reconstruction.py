@@ -28,11 +28,10 @@ import torch
 
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
-from radar4dgs.io.scene import SceneWarning, read_mask_png
+from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
 from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
-from radar4dgs.io.scene import normalized_times
-from radar4dgs.model.view import View, frame_view
 from radar4dgs.model.run import HISTORY_FILE, LOSS_TERMS, Run, load_run
+from radar4dgs.model.view import View, frame_view
 
 METRICS_FILE = "metrics.json"
 RENDERS_DIR = "renders"

@@ -11,6 +11,7 @@ import numpy as np
 
 from radar4dgs.io.atomic import atomic_path
 
+
 def _check_frame(frame: np.ndarray, index: int, shape: tuple[int, ...] | None) -> np.ndarray:
     frame = np.asarray(frame)
     if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:

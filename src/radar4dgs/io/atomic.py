@@ -13,7 +13,6 @@ from typing import Any, Iterator
 
 import numpy as np
 
-
 # mkstemp/mkdtemp create private (0600/0700) entries; outputs are meant to be shared like any file.
 _FILE_MODE = 0o644
 _DIR_MODE = 0o755

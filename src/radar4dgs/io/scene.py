@@ -17,9 +17,17 @@ This is the public entry point; the parts live in:
 from __future__ import annotations
 
 from radar4dgs.io.scene_files import read_mask_png
-from radar4dgs.io.scene_format import (DEFAULT_TEST_EVERY, FORMAT_NAME, FORMAT_VERSION, IMAGE_SUFFIXES,
-                                       OPTIONAL_FOLDERS, ORTHONORMAL_TOLERANCE, REQUIRED_RADAR_FIELDS,
-                                       SceneError, SceneWarning)
+from radar4dgs.io.scene_format import (
+                                       DEFAULT_TEST_EVERY,
+                                       FORMAT_NAME,
+                                       FORMAT_VERSION,
+                                       IMAGE_SUFFIXES,
+                                       OPTIONAL_FOLDERS,
+                                       ORTHONORMAL_TOLERANCE,
+                                       REQUIRED_RADAR_FIELDS,
+                                       SceneError,
+                                       SceneWarning,
+)
 from radar4dgs.io.scene_read import read_scene
 from radar4dgs.io.scene_types import Camera, Frame, RadarScan, RadarSpec, Scene, normalized_times, split_indices
 from radar4dgs.io.scene_write import SceneWriter, save_array, scene_metadata, write_scene_json

@@ -14,8 +14,15 @@ import numpy as np
 from PIL import Image
 
 from radar4dgs.io.scene_files import _check_radar_shape, _load_npy
-from radar4dgs.io.scene_format import (DEFAULT_TEST_EVERY, FORMAT_NAME, FORMAT_VERSION, IMAGE_SUFFIXES,
-                                       ORTHONORMAL_TOLERANCE, REQUIRED_RADAR_FIELDS, SceneError)
+from radar4dgs.io.scene_format import (
+    DEFAULT_TEST_EVERY,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    IMAGE_SUFFIXES,
+    ORTHONORMAL_TOLERANCE,
+    REQUIRED_RADAR_FIELDS,
+    SceneError,
+)
 from radar4dgs.io.scene_types import Camera, Frame, RadarSpec, Scene
 
 # --------------------------------------------------------------------------------------------

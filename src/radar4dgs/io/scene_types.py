@@ -13,8 +13,13 @@ import numpy as np
 from PIL import Image
 
 from radar4dgs.io.scene_files import _check_optional_array, _check_radar_shape, _load_npy, read_mask_png
-from radar4dgs.io.scene_format import (DEFAULT_TEST_EVERY, OPTIONAL_FOLDERS, REQUIRED_RADAR_FIELDS, SceneError,
-                                       SceneWarning)
+from radar4dgs.io.scene_format import (
+    DEFAULT_TEST_EVERY,
+    OPTIONAL_FOLDERS,
+    REQUIRED_RADAR_FIELDS,
+    SceneError,
+    SceneWarning,
+)
 
 
 @dataclass(frozen=True)

@@ -154,7 +154,7 @@ class BaselineConfig:
 
 # "ours": static + dynamic Gaussians moved by the VGPT field; "static": every Gaussian static, no
 # field (the same trainer with dynamics switched off); "deformable", "pvg", "bspline": the
-# baselines' motion models (train.motion_models). Ablations of "ours" are config changes, named in
+# baselines' motion models (model.motion_models). Ablations of "ours" are config changes, named in
 # train.variants.
 Method = Literal["ours", "static", "deformable", "pvg", "bspline"]
 # Where the dynamic masks come from: the prepared ones (the segmentation network), the non-learned

@@ -37,6 +37,7 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
+
 from radar4dgs.model.config import FieldConfig
 
 

@@ -26,13 +26,12 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor, nn
 
-from radar4dgs.io.scene import read_mask_png
-from radar4dgs.io.scene import normalized_times
-from radar4dgs.motion.lift import backproject
+from radar4dgs.io.scene import normalized_times, read_mask_png
 from radar4dgs.model.config import GaussianInitConfig
+from radar4dgs.motion.lift import backproject
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
-# Optional per-Gaussian motion parameters of the baselines (train.motion_models): ``velocity``
+# Optional per-Gaussian motion parameters of the baselines (model.motion_models): ``velocity``
 # (N, 3), ``tau`` (N,) life peak, ``log_lifespan`` (N,), ``control`` (N, K, 3) B-spline offsets.
 MOTION_PARAM_NAMES: tuple[str, ...] = ("velocity", "tau", "log_lifespan", "control")
 

@@ -24,8 +24,8 @@ import math
 import numpy as np
 import torch
 from torch import Tensor, nn
-from radar4dgs.model.config import BaselineConfig
 
+from radar4dgs.model.config import BaselineConfig
 
 # --------------------------------------------------------------------------------------------
 # PVG

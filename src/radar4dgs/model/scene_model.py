@@ -18,13 +18,12 @@ from torch import Tensor, nn
 
 from radar4dgs.config import from_dict, to_dict
 from radar4dgs.model.field import DeformationField, FieldConfig
-from radar4dgs.render.api import rasterize
-from radar4dgs.render.config import RasterConfig
 from radar4dgs.model.gaussians import GaussianSet
-from radar4dgs.model.motion_models import (BaselineConfig, OffsetField, bspline_means, pvg_means,
-                                           temporal_visibility)
+from radar4dgs.model.motion_models import BaselineConfig, OffsetField, bspline_means, pvg_means, temporal_visibility
 from radar4dgs.model.sky import SkyEnvironment, camera_ray_directions
 from radar4dgs.model.view import View, rasterizer_intrinsics
+from radar4dgs.render.api import rasterize
+from radar4dgs.render.config import RasterConfig
 
 # The rasterizer's depth range: the synthetic and real scenes reach ~150 m; sky is left to the map.
 NEAR_PLANE = 0.05

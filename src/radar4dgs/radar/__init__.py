@@ -10,8 +10,13 @@ Public API::
 from radar4dgs.radar.classify import classify_dynamic, compensated_radial_velocity, dynamic_threshold
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
-from radar4dgs.radar.poses import (ego_motion_from_radar, ego_rates_from_radar, expected_radar_velocity, integrate_poses,
-                                   poses_from_radar)
+from radar4dgs.radar.poses import (
+                                   ego_motion_from_radar,
+                                   ego_rates_from_radar,
+                                   expected_radar_velocity,
+                                   integrate_poses,
+                                   poses_from_radar,
+)
 from radar4dgs.radar.process import load_radar_outputs, prepare_radar
 
 __all__ = ["EgoMotion", "RadarConfig", "classify_dynamic", "compensated_radial_velocity", "dynamic_threshold", "ego_motion_from_radar", "ego_rates_from_radar",

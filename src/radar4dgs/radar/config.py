@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Literal, Mapping, Any
+from typing import Any, ClassVar, Literal, Mapping
 
 
 @dataclass

@@ -15,9 +15,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from radar4dgs.render.config import RENDER_MODES, Backend, RenderMode
 from radar4dgs.render.projection import project_gaussians
 from radar4dgs.render.torch_backend import rasterize_pixels
-from radar4dgs.render.config import Backend, RENDER_MODES, RenderMode
 
 
 def select_backend(backend: str, device: torch.device) -> str:

@@ -22,8 +22,8 @@ from radar4dgs.io.preview import radar_points_in_camera
 from radar4dgs.io.scene import Scene, SceneWarning
 from radar4dgs.radar.classify import compensated_radial_velocity
 from radar4dgs.radar.process import load_radar_dynamics_flags
-from radar4dgs.segment.patches import RadarFrame, make_radar_frame
 from radar4dgs.segment.config import DynamicSource
+from radar4dgs.segment.patches import RadarFrame, make_radar_frame
 
 
 def radar_velocity_from_poses(scene: Scene, index: int) -> np.ndarray:

@@ -22,11 +22,20 @@ import torch
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
 from radar4dgs.io.scene import Scene
+from radar4dgs.segment.config import SegInferConfig
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
-from radar4dgs.segment.patches import (RadarFrame, candidate_anchors, extract_patches, paste_max, patch_boxes,
-                                       patch_side, radar_features, resize_patches, sample_anchors)
-from radar4dgs.segment.config import SegInferConfig
+from radar4dgs.segment.patches import (
+    RadarFrame,
+    candidate_anchors,
+    extract_patches,
+    paste_max,
+    patch_boxes,
+    patch_side,
+    radar_features,
+    resize_patches,
+    sample_anchors,
+)
 
 # The checkpoint shipped in the package (segment/weights/), and its card.
 DEFAULT_WEIGHTS = "segnet-small.pt"

@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 from torchvision.models.resnet import BasicBlock
+
 from radar4dgs.segment.config import SegModelConfig
 
 # Per radar point features fed to the radar encoder, in this order (see patches.radar_features).

@@ -21,8 +21,8 @@ import torch
 import torch.nn.functional as F
 from torchvision.ops import roi_align
 
-from radar4dgs.segment.model import NUM_RADAR_FEATURES
 from radar4dgs.segment.config import AnchorSampling
+from radar4dgs.segment.model import NUM_RADAR_FEATURES
 
 # Reference patch size of the paper: 256×256 px at 1920×1080.
 PAPER_PATCH_SIDE = 256

@@ -28,14 +28,18 @@ import torch.nn.functional as F
 
 from radar4dgs.config import save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.segment.config import AugmentConfig, SegTrainConfig
 from radar4dgs.segment.dataset import TrainFrame
 from radar4dgs.segment.infer import SegInferConfig, frame_rng, patch_batch, segment_frame
-from radar4dgs.segment.model import (RadarCameraSegNet, checkpoint_payload, count_parameters,
-                                     load_pretrained_backbone)
-from radar4dgs.segment.patches import (RadarFrame, candidate_anchors, extract_patches, in_image, patch_side,
-                                       sample_anchors)
-from radar4dgs.segment.config import AugmentConfig, SegTrainConfig
-
+from radar4dgs.segment.model import RadarCameraSegNet, checkpoint_payload, count_parameters, load_pretrained_backbone
+from radar4dgs.segment.patches import (
+    RadarFrame,
+    candidate_anchors,
+    extract_patches,
+    in_image,
+    patch_side,
+    sample_anchors,
+)
 
 # --------------------------------------------------------------------------------------------
 # Augmentation

@@ -11,21 +11,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from torch import Tensor
 
-from radar4dgs.io.scene import read_mask_png
-from radar4dgs.io.scene import normalized_times
-from radar4dgs.train.fit_motion import (FitConfig, FlowSamples, RadarSamples, collect_radar_samples,
-                                        flow_samples_from_pairs)
-from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.flow import load_flow_pairs
+from radar4dgs.io.scene import normalized_times, read_mask_png
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import require_prepared
-from radar4dgs.model.view import View, frame_view, resize_image, resize_nearest, resized_size
 from radar4dgs.model.sky import camera_ray_directions
+from radar4dgs.model.view import View, frame_view, resize_image, resize_nearest
+from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.flow import load_flow_pairs
+from radar4dgs.train.fit_motion import (
+    FitConfig,
+    FlowSamples,
+    RadarSamples,
+    collect_radar_samples,
+    flow_samples_from_pairs,
+)
 
 
 @dataclass

@@ -16,9 +16,9 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-from radar4dgs.render.projection import _rotmat_components
 from radar4dgs.model.config import DensifyConfig
 from radar4dgs.model.gaussians import MOTION_PARAM_NAMES, PARAM_NAMES, GaussianSet
+from radar4dgs.render.projection import _rotmat_components
 
 SPLIT_SCALE_DIVISOR = 1.6  # 3DGS: each of the two halves gets the scale / (0.8 * 2)
 

@@ -22,27 +22,24 @@ Time coordinate: ``t = (timestamp - t_first) / (t_last - t_first)`` in [0, 1] (:
 
 from __future__ import annotations
 
-import math
-import time
 import contextlib
-import dataclasses
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Literal, Mapping
+from typing import Any
 
 import numpy as np
 import torch
 
 from radar4dgs.config import to_dict
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.motion.association import associate_velocities, load_radar_dynamics
+from radar4dgs.metrics.losses import flow_loss, radar_loss
 from radar4dgs.model.field import DeformationField, FieldConfig
+from radar4dgs.motion.association import associate_velocities, load_radar_dynamics
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import frame_pairs, load_depth, load_flow_pairs, load_mask, prepare_flow
 from radar4dgs.motion.lift import backproject
-from radar4dgs.metrics.losses import flow_loss, radar_loss
 from radar4dgs.train.config import FitConfig, MotionConfig
-
 
 # --------------------------------------------------------------------------------------------
 # Data

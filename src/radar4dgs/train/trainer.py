@@ -32,15 +32,28 @@ from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames
-from radar4dgs.model.run import (CHECKPOINT_DIR, CONFIG_FILE, HISTORY_FILE, LAST_CHECKPOINT, LOSS_TERMS, MODEL_FILE,
-                                 RUN_FILE)
+from radar4dgs.model.run import (
+    CHECKPOINT_DIR,
+    CONFIG_FILE,
+    HISTORY_FILE,
+    LAST_CHECKPOINT,
+    LOSS_TERMS,
+    MODEL_FILE,
+    RUN_FILE,
+)
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.train.data import FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
 from radar4dgs.train.fit_motion import torch_threads
-from radar4dgs.train.model_init import (dynamic_gaussians, gaussian_kwargs, new_field, offset_field, scene_extent,
-                                        with_lifespans)
+from radar4dgs.train.model_init import (
+    dynamic_gaussians,
+    gaussian_kwargs,
+    new_field,
+    offset_field,
+    scene_extent,
+    with_lifespans,
+)
 from radar4dgs.train.objective import image_losses, motion_losses, total_loss
 from radar4dgs.train.optimizers import make_optimizer, make_optimizers, set_learning_rates
 from radar4dgs.train.run_config import run_config_difference, same_run_config

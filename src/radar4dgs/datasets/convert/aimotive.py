@@ -36,9 +36,9 @@ import numpy as np
 import tyro
 
 from radar4dgs.datasets.convert.common import fit_scans, scaled_intrinsics, transform_points, write_scene
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
 from radar4dgs.datasets.synth.camera import CV_TO_EGO
 from radar4dgs.datasets.synth.radar import spherical_to_xyz
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.poses import ego_rates_from_radar, integrate_poses
 from radar4dgs.radar.process import smooth_velocities

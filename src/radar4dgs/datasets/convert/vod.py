@@ -53,9 +53,19 @@ import cv2
 import numpy as np
 import tyro
 
-from radar4dgs.datasets.convert.common import (DopplerSign, ImageRectifier, apply_doppler_sign, doppler_sign,
-                                               keep_rows, radar_row_counts, read_first_image, read_lidar_scan,
-                                               read_radar_scans, rebase, write_scene)
+from radar4dgs.datasets.convert.common import (
+    DopplerSign,
+    ImageRectifier,
+    apply_doppler_sign,
+    doppler_sign,
+    keep_rows,
+    radar_row_counts,
+    read_first_image,
+    read_lidar_scan,
+    read_radar_scans,
+    rebase,
+    write_scene,
+)
 from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
 
 RAW_RADAR_COLUMNS = 7

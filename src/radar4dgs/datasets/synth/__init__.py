@@ -5,8 +5,13 @@
 does the same from the command line.
 """
 
-from radar4dgs.datasets.synth.config import (LidarSimConfig, MonoPriorConfig, RadarReflectivity, RadarSimConfig,
-                                         SynthConfig)
+from radar4dgs.datasets.synth.config import (
+                                         LidarSimConfig,
+                                         MonoPriorConfig,
+                                         RadarReflectivity,
+                                         RadarSimConfig,
+                                         SynthConfig,
+)
 from radar4dgs.datasets.synth.generate import synthesize
 
 __all__ = ["LidarSimConfig", "MonoPriorConfig", "RadarReflectivity", "RadarSimConfig", "SynthConfig",

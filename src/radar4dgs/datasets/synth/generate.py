@@ -8,13 +8,13 @@ import numpy as np
 from tqdm import tqdm
 
 from radar4dgs.config import to_dict
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 from radar4dgs.datasets.synth import camera as C
 from radar4dgs.datasets.synth import lidar as L
 from radar4dgs.datasets.synth import priors as P
 from radar4dgs.datasets.synth import radar as R
 from radar4dgs.datasets.synth import world as W
 from radar4dgs.datasets.synth.config import SynthConfig
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 
 GENERATOR = "radar4dgs.synth"
 # Streams of np.random.default_rng([seed, stream, frame]): each output draws from its own stream,
