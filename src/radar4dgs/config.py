@@ -15,8 +15,6 @@ import typing
 from pathlib import Path
 from typing import Any, Literal, Mapping, Sequence, TypeVar
 
-from radar4dgs.io.atomic import atomic_write_json
-
 PresetName = Literal["tiny", "small", "paper"]
 PRESET_NAMES: tuple[str, ...] = typing.get_args(PresetName)
 T = TypeVar("T")
@@ -69,7 +67,7 @@ def _coerce(annotation: Any, value: Any) -> Any:
     if origin is tuple and isinstance(value, (list, tuple)):
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_coerce(args[0], v) for v in value)
-        return tuple(_coerce(a, v) for a, v in zip(args, value)) if args else tuple(value)
+        return tuple(_coerce(a, v) for a, v in zip(args, value, strict=True)) if args else tuple(value)
     if annotation is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value
@@ -118,6 +116,8 @@ def config_difference(saved: Mapping[str, Any], expected: Mapping[str, Any], ign
 def save_config(config: Any, path: str | Path) -> Path:
     """Save the resolved config as JSON (atomically), with its class name for reloading."""
     payload = {"class": f"{type(config).__module__}.{type(config).__qualname__}", "config": to_dict(config)}
+    from radar4dgs.io.atomic import atomic_write_json  # numpy and PIL: not for `--help`
+
     return atomic_write_json(path, payload)
 
 

@@ -8,31 +8,33 @@ scale-and-shift fit in inverse depth (``affine``, the default for relative prior
 too few radar pairs take their neighbours' parameters. Sky masks come from ``priors/sky_mask`` or a
 weight-free detector. :func:`prepare_depth` writes the results into the prepared folder and
 :func:`depth_frontend_metrics` scores them.
+
+Importing this package does not import scipy or torch: the names below load their module on
+first use, so that ``radar4dgs prepare --help`` answers at once.
 """
 
-from radar4dgs.depth.config import DepthConfig
-from radar4dgs.depth.depth_maps import metric_depth
-from radar4dgs.depth.flat_world import FlatWorldDepth, flat_world_depth
-from radar4dgs.depth.inverse_affine import fit_inverse_affine
-from radar4dgs.depth.metrics import depth_frontend_metrics, frame_depth_errors, score_frames
-from radar4dgs.depth.pairs import DepthWarning, FrameFit
-from radar4dgs.depth.paper_scale import histogram_vote, plane_votes
-from radar4dgs.depth.pipeline import evaluate_depth_methods, prepare_depth, static_mask, write_depth
-from radar4dgs.depth.scale import recover_scale
-from radar4dgs.depth.sky import fallback_sky_mask, mask_iou
-from radar4dgs.depth.sources import (
-                                     DepthAnythingV2,
-                                     DepthModelError,
-                                     build_depth_model,
-                                     depth_anything_available,
-                                     load_depth_anything,
-)
-from radar4dgs.depth.temporal import FrameParameters, fill_from_neighbours, limit_metric_correction
+from __future__ import annotations
 
-__all__ = [
-    "DepthAnythingV2", "DepthConfig", "DepthModelError", "DepthWarning", "FlatWorldDepth", "FrameFit",
-    "FrameParameters", "build_depth_model", "depth_anything_available", "depth_frontend_metrics",
-    "evaluate_depth_methods", "fallback_sky_mask", "fill_from_neighbours", "fit_inverse_affine", "flat_world_depth",
-    "frame_depth_errors", "histogram_vote", "limit_metric_correction", "load_depth_anything", "mask_iou",
-    "metric_depth", "plane_votes", "prepare_depth", "recover_scale", "score_frames", "static_mask", "write_depth",
-]
+import importlib
+from typing import Any
+
+from radar4dgs.depth.config import DepthConfig
+
+_LAZY = {
+    "metric_depth": "depth_maps", "FlatWorldDepth": "flat_world",
+    "flat_world_depth": "flat_world", "fit_inverse_affine": "inverse_affine", "depth_frontend_metrics": "metrics",
+    "frame_depth_errors": "metrics", "score_frames": "metrics", "DepthWarning": "pairs", "FrameFit": "pairs",
+    "histogram_vote": "paper_scale", "plane_votes": "paper_scale", "evaluate_depth_methods": "pipeline",
+    "prepare_depth": "pipeline", "static_mask": "pipeline", "write_depth": "pipeline", "recover_scale": "scale",
+    "fallback_sky_mask": "sky", "mask_iou": "sky", "DepthAnythingV2": "sources", "DepthModelError": "sources",
+    "build_depth_model": "sources", "depth_anything_available": "sources", "load_depth_anything": "sources",
+    "FrameParameters": "temporal", "fill_from_neighbours": "temporal", "limit_metric_correction": "temporal",
+}
+
+__all__ = ["DepthConfig", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"radar4dgs.depth.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

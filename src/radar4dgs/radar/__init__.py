@@ -5,20 +5,29 @@ Public API::
     from radar4dgs.radar import estimate_ego_motion, classify_dynamic, RadarConfig
     ego = estimate_ego_motion(xyz, v_r, seed=0)          # EgoMotion(velocity, inliers, covariance, ok, reason)
     is_dynamic, v_r_comp = classify_dynamic(xyz, v_r, ego)
+
+Importing this package does not import scipy: the names below load their module on first use,
+so that the CLI's configurations (:class:`RadarConfig`) stay cheap to import.
 """
 
-from radar4dgs.radar.classify import classify_dynamic, compensated_radial_velocity, dynamic_threshold
-from radar4dgs.radar.config import RadarConfig
-from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
-from radar4dgs.radar.poses import (
-                                   ego_motion_from_radar,
-                                   ego_rates_from_radar,
-                                   expected_radar_velocity,
-                                   integrate_poses,
-                                   poses_from_radar,
-)
-from radar4dgs.radar.process import load_radar_outputs, prepare_radar
+from __future__ import annotations
 
-__all__ = ["EgoMotion", "RadarConfig", "classify_dynamic", "compensated_radial_velocity", "dynamic_threshold", "ego_motion_from_radar", "ego_rates_from_radar",
-           "estimate_ego_motion", "expected_radar_velocity", "integrate_poses", "load_radar_outputs",
-           "poses_from_radar", "prepare_radar"]
+import importlib
+from typing import Any
+
+from radar4dgs.radar.config import RadarConfig
+
+_LAZY = {
+    "classify_dynamic": "classify", "compensated_radial_velocity": "classify", "dynamic_threshold": "classify",
+    "EgoMotion": "ego_motion", "estimate_ego_motion": "ego_motion", "ego_motion_from_radar": "poses",
+    "ego_rates_from_radar": "poses", "expected_radar_velocity": "poses", "integrate_poses": "poses",
+    "poses_from_radar": "poses", "load_radar_outputs": "process", "prepare_radar": "process",
+}
+
+__all__ = ["RadarConfig", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"radar4dgs.radar.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
