@@ -63,7 +63,8 @@ def main() -> int:
     print()
     for check in checks:
         a, b = check["better_psnr_dyn"], check["worse_psnr_dyn"]
-        shown = "missing" if check["holds"] is None else f"{a:.2f} vs {b:.2f} dB: {'holds' if check['holds'] else 'does NOT hold'}"
+        shown = ("missing" if check["holds"] is None
+                 else f"{a:.2f} vs {b:.2f} dB: {'holds' if check['holds'] else 'does NOT hold'}")
         print(f"{check['better']} > {check['worse']} (novel-view PSNR*): {shown}")
     seconds = [c["seconds"] for c in bench["cells"] if c.get("seconds") is not None]
     atomic_write_json(args.out, {"command": "radar4dgs " + " ".join(command[3:]), "config": bench["config"],

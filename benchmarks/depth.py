@@ -234,12 +234,13 @@ def main(argv=None) -> int:
     }
     checks = {
         "affine_absrel <= 0.08 (every seed)": summary["affine_absrel_max"] <= TARGETS["affine_absrel_max"],
-        "affine_absrel < paper_absrel (every seed)": all(a < p for a, p in zip(affine, paper)),
+        "affine_absrel < paper_absrel (every seed)": all(a < p for a, p in zip(affine, paper, strict=True)),
         "paper pure-scale median error <= 2% (every seed)":
             summary["paper_pure_scale_error_median_max"] <= TARGETS["paper_scale_error_median_max"],
         "scale recovery p95 <= 0.2 s per frame": summary["scale_recovery_p95_s_max"] <= TARGETS["scale_recovery_s_max"],
     }
-    report = {"benchmark": "depth", "preset": args.preset, "command": " ".join(["python", "benchmarks/depth.py"] + (argv or sys.argv[1:])),
+    report = {"benchmark": "depth", "preset": args.preset,
+              "command": " ".join(["python", "benchmarks/depth.py"] + (argv or sys.argv[1:])),
               "machine": {"platform": platform.platform(), "python": platform.python_version(),
                           "torch_threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
               "targets": TARGETS, "checks": checks, "summary": summary, "seeds": seeds}
@@ -250,14 +251,17 @@ def main(argv=None) -> int:
           f"{'pure-scale err':>14} {'t affine p95':>12} {'t paper p95':>11} {'sky IoU fb':>10} {'sky IoU prior':>13}")
     for s in seeds:
         print(f"{s['seed']:>4} {s['da_like_prior']['affine']['depth_absrel']:>13.4f} "
-              f"{s['da_like_prior']['paper']['depth_absrel']:>12.4f} {s['da_like_prior']['affine']['depth_rmse']:>11.2f} "
-              f"{s['da_like_prior']['paper']['depth_rmse']:>10.2f} {s['pure_scale_prior']['paper']['scale_error_median']:>14.5f} "
+              f"{s['da_like_prior']['paper']['depth_absrel']:>12.4f} "
+              f"{s['da_like_prior']['affine']['depth_rmse']:>11.2f} "
+              f"{s['da_like_prior']['paper']['depth_rmse']:>10.2f} "
+              f"{s['pure_scale_prior']['paper']['scale_error_median']:>14.5f} "
               f"{s['timing']['affine']['p95_s']:>12.4f} {s['timing']['paper']['p95_s']:>11.4f} "
               f"{s['sky']['iou_fallback']:>10.4f} {s['sky']['iou_prior']:>13.4f}")
     print(f"affine frame-to-frame jitter of median(z/z_gt) (RMS step, z_gt < 60 m / dynamic pixels), "
           f"temporal_window {seeds[0]['temporal_window']}: {summary['affine_ratio_jitter_mean']:.4%} / "
           f"{summary['affine_ratio_jitter_dynamic_mean']:.4%}; per-frame fits (window 1): "
-          f"{summary['affine_per_frame_ratio_jitter_mean']:.4%} / {summary['affine_per_frame_ratio_jitter_dynamic_mean']:.4%}; "
+          f"{summary['affine_per_frame_ratio_jitter_mean']:.4%} / "
+          f"{summary['affine_per_frame_ratio_jitter_dynamic_mean']:.4%}; "
           f"AbsRel {summary['affine_absrel_mean']:.4f} vs {summary['affine_per_frame_absrel_mean']:.4f}")
     for name, ok in checks.items():
         print(f"  [{'PASS' if ok else 'FAIL'}] {name}")

@@ -51,7 +51,8 @@ def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
                     y = field(x, t)
                     worst = max(worst, float((field.inverse(y, t) - x).abs().max()))
                     moved.append(float((y - x).norm(dim=1).mean()))
-            out[f"{name}_{str(dtype).split('.')[-1]}"] = {"max_error": worst, "mean_displacement": float(np.mean(moved))}
+            out[f"{name}_{str(dtype).split('.')[-1]}"] = {"max_error": worst,
+                                                         "mean_displacement": float(np.mean(moved))}
     return out
 
 
@@ -114,7 +115,8 @@ def main() -> None:
                            "radar_matched": result.get("radar_matched"),
                            "flow_pairs": result.get("flow_pairs")}
             entry["zero_motion_epe"] = result["sceneflow"]["zero_motion_epe"]
-            print(f"seed {seed} {mode:<10} EPE {entry[mode]['epe']:.3f} m  fit {entry[mode]['fit_seconds']:.0f} s", flush=True)
+            print(f"seed {seed} {mode:<10} EPE {entry[mode]['epe']:.3f} m  fit {entry[mode]['fit_seconds']:.0f} s",
+                  flush=True)
         entry["seconds"] = time.perf_counter() - started
         report["seeds"][str(seed)] = entry
         summarize(report)

@@ -158,7 +158,7 @@ def truck_run(scans, truths, radar_to_ego, config: RadarConfig, seed: int, **tru
     reasons = set()
     prior = None
     vertical = radar_to_ego[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-    for i, ((xyz, v_r), v_true) in enumerate(zip(scans, truths)):
+    for i, ((xyz, v_r), v_true) in enumerate(zip(scans, truths, strict=True)):
         xyz2, vr2, is_truck = inject_truck(xyz, v_r, v_true, radar_to_ego, rng, **truck)
         ego = estimate_ego_motion(xyz2, vr2, config, prior=prior, vertical_axis=vertical, seed=seed + i)
         prior = ego.velocity if ego.ok else None   # as radar.process.fit_frames
@@ -213,7 +213,8 @@ def aimotive(work: Path, src: Path) -> dict:
     raw_root = work / "aimotive-raw-prepared"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
-        run_prepare(root, raw_root, PrepareConfig(radar=RadarConfig(**raw)), force=True, only=("radar",), progress=False)
+        run_prepare(root, raw_root, PrepareConfig(radar=RadarConfig(**raw)), force=True, only=("radar",),
+                    progress=False)
     raw_summary = json.loads((raw_root / "radar" / "summary.json").read_text())
     raw_speed = np.array([f["speed"] for f in raw_summary["frames"]], dtype=float)
     # False positives that look like noise (|v_r_comp| <= 2 m/s) vs fast unlabelled movers.
@@ -289,8 +290,8 @@ def main(argv=None) -> int:
                       f"{r['static_residual_median']:.3f}, ok {r['ok_frames']}/{r['frames']}, parked rate "
                       f"{r['parked_dynamic_rate']}, static rate {r['static_dynamic_rate']:.4f} "
                       f"({time.perf_counter() - t0:.0f} s)")
-            keys = ("ego_velocity_rmse", "ego_velocity_rmse_without_vertical_prior", "dynamic_precision", "dynamic_recall", "static_residual_median",
-                    "parked_dynamic_rate", "static_dynamic_rate")
+            keys = ("ego_velocity_rmse", "ego_velocity_rmse_without_vertical_prior", "dynamic_precision",
+                    "dynamic_recall", "static_residual_median", "parked_dynamic_rate", "static_dynamic_rate")
             results[variant] = {"per_seed": per_seed, "mean": {
                 k: float(np.mean([r[k] for r in per_seed.values() if r[k] is not None])) for k in keys},
                 "worst": {"ego_velocity_rmse": max(r["ego_velocity_rmse"] for r in per_seed.values()),
@@ -316,7 +317,8 @@ def main(argv=None) -> int:
               f"{a['flagged_outside_boxes_noise_like_(<=2m/s)']})")
         t = a["truck_injection"]
         print(f"aimotive + truck: ok {t['ok_frames']}/{t['frames']}, static world found "
-              f"{t['frames_static_world_found (err<0.2)']}, truck recall {t['truck_recall']:.3f}, reasons {t['reasons']}")
+              f"{t['frames_static_world_found (err<0.2)']}, truck recall {t['truck_recall']:.3f}, "
+              f"reasons {t['reasons']}")
 
     atomic_write_json(args.out, json.loads(json.dumps(results, default=float)))
     print(f"wrote {args.out}")

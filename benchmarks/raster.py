@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
                 if args.checkpoint:
                     cmd.append("--checkpoint")
                 proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
-                lines = [l for l in proc.stdout.splitlines() if l.startswith("ROW ")]
+                lines = [line for line in proc.stdout.splitlines() if line.startswith("ROW ")]
                 if proc.returncode != 0 or not lines:
                     print(f"{size:>8} {n:>6} {backend:>7} FAILED: {proc.stderr.strip()[-300:]}")
                     continue

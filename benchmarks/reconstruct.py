@@ -43,7 +43,8 @@ def prepare_scene(seed: int, preset_name: str, work: Path) -> tuple[Path, Path, 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
-        synthesize(preset(SynthConfig, preset_name, seed=seed), scene, overwrite=True, progress=False, preset=preset_name)
+        synthesize(preset(SynthConfig, preset_name, seed=seed), scene, overwrite=True, progress=False,
+                   preset=preset_name)
     run_prepare(scene, work / f"seed{seed}" / "prepared", preset(PrepareConfig, preset_name), progress=False)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started
 
@@ -116,7 +117,8 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
     return {"seed": seed, "resumed_from_step": killed_at,
             "unbroken": {k: reference[k] for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn")},
             "resumed": {k: resumed[k] for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn")},
-            "max_abs_difference_db": max(abs(reference[k] - resumed[k]) for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn"))}
+            "max_abs_difference_db": max(abs(reference[k] - resumed[k])
+                                         for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn"))}
 
 
 def aimotive(work: Path, preset_name: str) -> dict:

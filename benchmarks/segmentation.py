@@ -70,11 +70,12 @@ def figure_row(image, radar, result, pred, gt, scale: int = 2) -> np.ndarray:
         centre = (int(scale * u + scale / 2), int(scale * v + scale / 2))
         cv2.circle(points, centre, 3, (0, 0, 0), -1)
         cv2.circle(points, centre, 2, (255, 255, 0), -1)
-    for (x0, y0, x1, y1), (u, v) in zip(result.boxes, result.anchors):
+    for (x0, y0, x1, y1), (u, v) in zip(result.boxes, result.anchors, strict=True):
         cv2.rectangle(points, (scale * int(x0), scale * int(y0)), (scale * int(x1), scale * int(y1)), (255, 60, 60), 1)
         cv2.drawMarker(points, (int(scale * u + scale / 2), int(scale * v + scale / 2)), (255, 0, 0),
                        cv2.MARKER_SQUARE, 6, 2)
-    return np.concatenate([points, big(overlay(image, pred, (255, 0, 255))), big(overlay(image, gt, (0, 255, 0)))], axis=1)
+    return np.concatenate([points, big(overlay(image, pred, (255, 0, 255))), big(overlay(image, gt, (0, 255, 0)))],
+                          axis=1)
 
 
 def label_bar(width: int, titles: list[str]) -> np.ndarray:

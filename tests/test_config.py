@@ -56,3 +56,10 @@ def test_load_refuses_another_class(tmp_path):
 def test_from_dict_coerces_ints_to_floats():
     assert from_dict(Noise, {"range_std": 1}).range_std == 1.0
     assert isinstance(from_dict(Noise, {"range_std": 1}).range_std, float)
+
+
+def test_a_tuple_of_the_wrong_length_names_the_field():
+    from radar4dgs.datasets.synth import SynthConfig
+
+    with pytest.raises(ValueError, match=r"SynthConfig\.ego_speed: expected 2 values, got 3"):
+        from_dict(SynthConfig, {"ego_speed": [1.0, 2.0, 3.0]})

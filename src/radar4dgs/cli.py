@@ -25,7 +25,8 @@ from radar4dgs.config import PRESET_NAMES, preset
 # module (tests/test_cli.py checks that the two agree).
 COMMANDS: dict[str, tuple[str, str, str]] = {
     "demo": ("radar4dgs.apps.demo", "DemoCommand",
-        "Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, train, evaluate."),
+        "Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, "
+        "train, evaluate."),
     "synth": ("radar4dgs.datasets.synth.command", "SynthCommand",
         "Synthesise a procedural driving scene with ground truth (radar4dgs synth OUT --preset small --seed 1)."),
     "convert aimotive": ("radar4dgs.datasets.convert.aimotive", "ConvertAimotiveCommand",

@@ -67,6 +67,8 @@ def _coerce(annotation: Any, value: Any) -> Any:
     if origin is tuple and isinstance(value, (list, tuple)):
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_coerce(args[0], v) for v in value)
+        if args and len(args) != len(value):
+            raise ValueError(f"expected {len(args)} values, got {len(value)}: {list(value)}")
         return tuple(_coerce(a, v) for a, v in zip(args, value, strict=True)) if args else tuple(value)
     if annotation is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
@@ -93,7 +95,10 @@ def from_dict(cls: type[T], values: Mapping[str, Any], partial: bool = True) -> 
             merged.update(value)
             kwargs[name] = from_dict(annotation, merged)
         else:
-            kwargs[name] = _coerce(annotation, value)
+            try:
+                kwargs[name] = _coerce(annotation, value)
+            except ValueError as exc:
+                raise ValueError(f"{cls.__name__}.{name}: {exc}") from None
     return cls(**kwargs)
 
 

@@ -78,7 +78,8 @@ def test_the_grid_resumes_each_cell_from_what_its_folder_holds(tmp_path, fake_tr
     # a/ours finished before; a/static was trained, not evaluated; b/ours was killed after a
     # checkpoint (with 4 threads then: it resumes with this bench's 1, a runtime field).
     (runs / "a" / "ours").mkdir(parents=True)
-    (runs / "a" / "ours" / "metrics.json").write_text(json.dumps(fake_metrics((31, 0.9, None, 26), (26, 0.8, None, 21))))
+    (runs / "a" / "ours" / "metrics.json").write_text(
+        json.dumps(fake_metrics((31, 0.9, None, 26), (26, 0.8, None, 21))))
     (runs / "a" / "static").mkdir(parents=True)
     (runs / "a" / "static" / "model.pt").write_bytes(b"model")
     (runs / "b" / "ours" / "checkpoints").mkdir(parents=True)

@@ -23,7 +23,8 @@ def scene(tmp_path_factory):
 
 
 def test_command_writes_sheet_and_json(scene, tmp_path, capsys):
-    assert main(["inspect", str(scene.root), "--sheet", str(tmp_path / "s.png"), "--json", str(tmp_path / "s.json")]) == 0
+    assert main(["inspect", str(scene.root), "--sheet", str(tmp_path / "s.png"),
+                 "--json", str(tmp_path / "s.json")]) == 0
     out = capsys.readouterr().out
     assert "frames     6 over 0.50 s" in out and "median 8" in out
     assert (tmp_path / "s.png").stat().st_size > 0

@@ -39,7 +39,8 @@ def test_prepare_runs_radar_then_depth_and_frontend_eval_scores_both(tiny_scene,
     assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet"]) == 0
     assert "radar: skipped" in capsys.readouterr().out
     # A changed depth config reruns depth and the masks that read it, not the radar before it.
-    assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet", "--config.depth.scale-method", "paper"]) == 0
+    assert main(["prepare", str(tiny_scene), "--preset", "tiny", "--quiet",
+                 "--config.depth.scale-method", "paper"]) == 0
     out = capsys.readouterr().out
     assert "radar: skipped" in out and "depth: ran" in out and "masks: ran" in out
 

@@ -54,7 +54,7 @@ def test_recorded_is_identity():
     w2c, times, _ = recorded()
     poses = build_trajectory("recorded", w2c, times)
     assert len(poses) == len(w2c)
-    for pose, m, t in zip(poses, w2c, times):
+    for pose, m, t in zip(poses, w2c, times, strict=True):
         assert isinstance(pose, CameraPose)
         assert pose.world_to_camera.dtype == np.float64 and pose.world_to_camera.shape == (4, 4)
         np.testing.assert_array_equal(pose.world_to_camera, m)
@@ -112,7 +112,7 @@ def test_stop_time_freezes_time_and_follows_the_recorded_path():
                          ("stop-time:0.5", 0.5), ("stop-time:1.0", 1.0), ("stop-time:0", 0.0)):
         poses = build_trajectory(spec, w2c, times)
         assert [p.time for p in poses] == [frozen] * 5, spec
-        for pose, m in zip(poses, w2c):
+        for pose, m in zip(poses, w2c, strict=True):
             np.testing.assert_array_equal(pose.world_to_camera, m)
     with pytest.raises(ValueError, match=re.escape("'stop-time:5'") + ".*out of range for 5 frames"):
         build_trajectory("stop-time:5", w2c, times)
@@ -124,7 +124,7 @@ def test_custom_json_round_trip(tmp_path):
     path = write_custom_trajectory(tmp_path / "path.json", original)
     back = build_trajectory(f"custom:{path}", w2c[:1], times[:1])  # recorded cameras ignored
     assert len(back) == len(original)
-    for a, b in zip(back, original):
+    for a, b in zip(back, original, strict=True):
         np.testing.assert_array_equal(a.world_to_camera, b.world_to_camera)
         assert a.time == b.time
 

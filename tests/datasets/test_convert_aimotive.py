@@ -71,7 +71,8 @@ def _fake_sequence(root: Path, frames: int = 6, speed: float = 20.0) -> Path:
         cv2.imwrite(str(cam_dir / f"{CAMERA}_{fid}.jpg"), rng.integers(0, 255, (32, 64, 3), dtype=np.uint8))
         az = rng.uniform(-0.25, 0.25, 40)
         targets = [{"azimuth": a, "elevation": 0.0, "range": r, "speed": -speed * np.cos(a) + rng.normal(0, 0.03),
-                    "rcs": 1.0, "power": 100.0, "noise": 90.0} for a, r in zip(az, rng.uniform(10, 80, 40))]
+                    "rcs": 1.0, "power": 100.0, "noise": 90.0}
+                   for a, r in zip(az, rng.uniform(10, 80, 40), strict=True)]
         # A car 30 m ahead in the radar frame, driving at 15 m/s (relative -5 m/s).
         targets += [{"azimuth": 0.0, "elevation": 0.0, "range": 30.0 + k * 0.3, "speed": -5.0, "rcs": 5.0,
                      "power": 120.0, "noise": 90.0} for k in range(3)]

@@ -162,7 +162,8 @@ def test_static_radar_points_obey_the_doppler_model_exactly(exact):
 
 
 def test_static_radar_points_obey_the_doppler_model_within_noise(noisy):
-    residuals = np.concatenate([r[l == 0] for r, l in (doppler_residual(noisy, i) for i in range(len(noisy)))])
+    residuals = np.concatenate([r[labels == 0]
+                                for r, labels in (doppler_residual(noisy, i) for i in range(len(noisy)))])
     # v_r noise 0.08 m/s plus azimuth noise 0.3 deg times the radar speed (<= 20 m/s).
     speed = noisy.frames[0].ego_velocity[0]
     sigma = np.hypot(0.08, speed * np.radians(0.3))
@@ -189,7 +190,7 @@ def test_radar_labels_match_the_cars_they_hit(exact):
 
 
 def test_radar_points_project_onto_pixels_of_the_same_depth(exact, noisy):
-    agree, seen = [], []
+    agree = []
     for i in range(len(exact)):
         scan = exact.load_radar(i)
         labels = exact.load_optional("gt/radar_labels", i)

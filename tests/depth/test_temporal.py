@@ -58,7 +58,9 @@ def test_window_recovers_drifting_parameters_better_than_per_frame_fits():
     before, after = inverse_depth_error(single), inverse_depth_error(refined)
     assert after < 0.8 * before, (before, after)
     # Frame-to-frame jitter of the scale at 20 m falls too.
-    ratio = lambda fits: np.array([(f.a * (1 / 20 - truth(i)[1]) / truth(i)[0] + f.b) * 20 for i, f in enumerate(fits)])
+    def ratio(fits):
+        return np.array([(f.a * (1 / 20 - truth(i)[1]) / truth(i)[0] + f.b) * 20 for i, f in enumerate(fits)])
+
     assert np.std(np.diff(ratio(refined))) < 0.6 * np.std(np.diff(ratio(single)))
     for i, fit in enumerate(refined):
         assert fit.ok and fit.extra["frame_a"] == single[i].a and fit.extra["frame_b"] == single[i].b
@@ -67,10 +69,13 @@ def test_window_recovers_drifting_parameters_better_than_per_frame_fits():
 
 def test_linear_drift_is_followed_without_bias_even_at_the_ends():
     # Noise-free pairs, scale and shift drifting linearly: the local-linear window model is exact.
-    linear = lambda i: (0.4 * (1 + 0.01 * i), 0.02 - 0.0003 * i)
+    def linear(i):
+        return 0.4 * (1 + 0.01 * i), 0.02 - 0.0003 * i
+
     rng = np.random.default_rng(3)
     config = DepthConfig(temporal_window=7)
-    fits = [affine_fit(pairs(i, rng, noise=0.0, drift=linear, clutter_fraction=0.0), config, np.random.default_rng(i)) for i in range(20)]
+    fits = [affine_fit(pairs(i, rng, noise=0.0, drift=linear, clutter_fraction=0.0), config, np.random.default_rng(i))
+            for i in range(20)]
     for i, fit in enumerate(temporal_refine(fits, config)):
         a, b = linear(i)
         assert fit.a == pytest.approx(a, rel=1e-7) and fit.b == pytest.approx(b, rel=1e-6, abs=1e-9)

@@ -106,7 +106,7 @@ def test_dynamic_flag_matches_ground_truth_mask(prepared_scene):
     dyn = data["dynamic"]
     assert dyn.sum() > 50
     on_gt = [scene.load_optional("gt/dynamic_mask", f)[v, u]
-             for (u, v), f in zip(data["pixels"][dyn], data["frame"][dyn])]
+             for (u, v), f in zip(data["pixels"][dyn], data["frame"][dyn], strict=True)]
     assert np.mean(on_gt) >= 0.85
 
 

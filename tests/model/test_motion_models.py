@@ -49,7 +49,8 @@ def test_pvg_position_and_velocity_at_the_life_peak():
     period = 0.2
     torch.testing.assert_close(pvg_means(means, velocity, tau, 0.3, period), means)
     h = 1e-6
-    derivative = (pvg_means(means, velocity, tau, 0.3 + h, period) - pvg_means(means, velocity, tau, 0.3 - h, period)) / (2 * h)
+    derivative = (pvg_means(means, velocity, tau, 0.3 + h, period)
+                  - pvg_means(means, velocity, tau, 0.3 - h, period)) / (2 * h)
     torch.testing.assert_close(derivative, velocity, rtol=1e-6, atol=1e-6)
     # Never further from the mean than |v| l / (2 pi).
     far = max(float((pvg_means(means, velocity, tau, t, period) - means).norm()) for t in np.linspace(0, 1, 101))

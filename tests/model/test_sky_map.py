@@ -45,7 +45,8 @@ def test_known_directions():
     # Straight up: latitude clamps to row 0; atan2(0, 0) = 0 -> between columns W/2-1 and W/2.
     torch.testing.assert_close(got[2], c[:, 0, W // 2 - 1:W // 2 + 1].mean(dim=1))
     # -x: longitude pi wraps between the last and the first column.
-    torch.testing.assert_close(got[3], (c[:, H // 2 - 1:H // 2 + 1, 0] + c[:, H // 2 - 1:H // 2 + 1, -1]).mean(dim=1) / 2)
+    torch.testing.assert_close(got[3],
+                               (c[:, H // 2 - 1:H // 2 + 1, 0] + c[:, H // 2 - 1:H // 2 + 1, -1]).mean(dim=1) / 2)
     # Straight down: the last row.
     torch.testing.assert_close(got[4], c[:, -1, W // 2 - 1:W // 2 + 1].mean(dim=1))
 

@@ -53,7 +53,7 @@ def raft_checkpoint(tmp_path_factory):
 def test_raft_checkpoint_loads_and_matches_the_network(raft_checkpoint, tmp_path):
     path, network = raft_checkpoint
     loaded = load_raft(path, "small")
-    for (name, a), b in zip(network.state_dict().items(), loaded.state_dict().values()):
+    for (name, a), b in zip(network.state_dict().items(), loaded.state_dict().values(), strict=True):
         assert torch.equal(a, b), name
     a = np.repeat(texture(36, 44)[..., None], 3, axis=2)  # not a multiple of 8: exercises padding
     b = np.roll(a, 2, axis=1)

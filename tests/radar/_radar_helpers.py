@@ -67,6 +67,6 @@ def write_tiny_scene(out: Path, frames: int = 6, speed: float = 10.0, yaw_rate: 
             frame = Frame(f"{i:06d}", t, pose, t, pose, v_ego if ego_velocity else None)
             extra = {"gt_radar_labels": moving.astype(np.int8)} if labels else {}
             writer.add_frame(frame, np.zeros((16, 32, 3), np.uint8), data, **extra)
-        writer.finish("tiny-radar", Camera(32, 16, K, cam_to_ego), RadarSpec(RADAR_TO_EGO, ("x", "y", "z", "v_r", "rcs")),
-                      source={"dataset": "test"})
+        writer.finish("tiny-radar", Camera(32, 16, K, cam_to_ego),
+                      RadarSpec(RADAR_TO_EGO, ("x", "y", "z", "v_r", "rcs")), source={"dataset": "test"})
     return out

@@ -42,7 +42,7 @@ def test_angular_weights_sum_to_one_per_bin():
     assert w.shape == (200,) and (w > 0).all() and (w <= 1).all()
     # Each occupied 5 x 5 deg azimuth-elevation bin contributes a total weight of one.
     az, el = np.degrees(np.arctan2(d[:, 1], d[:, 0])), np.degrees(np.arcsin(d[:, 2]))
-    bins = {(int(np.floor(a / 5.0)), int(np.floor(e / 5.0))) for a, e in zip(az, el)}
+    bins = {(int(np.floor(a / 5.0)), int(np.floor(e / 5.0))) for a, e in zip(az, el, strict=True)}
     assert w.sum() == pytest.approx(len(bins))
     assert (angular_weights(d, 0.0) == 1.0).all()
     assert angular_weights(np.zeros((0, 3)), 5.0).shape == (0,)

@@ -85,10 +85,11 @@ def test_prepare_command_skips_and_forces(tmp_path, capsys):
     assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny"]) == 0
     assert "radar: skipped" in capsys.readouterr().out and marker.stat().st_mtime_ns == first
     # A changed config reruns the stage; --force reruns it anyway.
-    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny", "--config.radar.noise-std", "0.2"]) == 0
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny",
+                 "--config.radar.noise-std", "0.2"]) == 0
     assert "radar: ran" in capsys.readouterr().out
-    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny", "--config.radar.noise-std", "0.2",
-                 "--force"]) == 0
+    assert main(["prepare", str(root), "--quiet", "--only", "radar", "--preset", "tiny",
+                 "--config.radar.noise-std", "0.2", "--force"]) == 0
     assert "radar: ran" in capsys.readouterr().out
     config = load_config(PrepareConfig, root / "prepared" / "config.json")
     assert config.radar.noise_std == 0.2 and config.radar.max_iterations == 200

@@ -74,8 +74,8 @@ def grads_of(fn, scene: dict, weights_seed: int = 0, **kwargs):
     wa = torch.rand(alphas.shape, generator=g, dtype=alphas.dtype).to(alphas.device)
     loss = (colors * wc).sum() + (alphas * wa).sum()
     grads = torch.autograd.grad(loss, [leaves[k] for k in PARAMS], allow_unused=True)
-    grads = [torch.zeros_like(leaves[k]) if gr is None else gr for k, gr in zip(PARAMS, grads)]
-    return colors.detach(), alphas.detach(), dict(zip(PARAMS, grads)), rest
+    grads = [torch.zeros_like(leaves[k]) if gr is None else gr for k, gr in zip(PARAMS, grads, strict=True)]
+    return colors.detach(), alphas.detach(), dict(zip(PARAMS, grads, strict=True)), rest
 
 
 @pytest.fixture

@@ -45,7 +45,7 @@ def test_binning_matches_naive_lists(seed, int32, monkeypatch):
     expect = _naive_bins(means2d, radii, depths, ts, W, H)
     got = [
         bins.flatten_ids[o : o + k].tolist()
-        for o, k in zip(bins.tile_offsets.tolist(), bins.tile_counts.tolist())
+        for o, k in zip(bins.tile_offsets.tolist(), bins.tile_counts.tolist(), strict=True)
     ]
     assert got == expect
     assert int(bins.tiles_per_gauss.sum()) == sum(len(lst) for lst in expect)

@@ -121,7 +121,7 @@ def test_paste_max_matches_naive_loop():
     boxes = patch_boxes(centres, side)
     patches = torch.rand(12, side, side)
     expected = np.zeros((h, w))
-    for patch, (x0, y0, _, _) in zip(patches.numpy(), boxes):
+    for patch, (x0, y0, _, _) in zip(patches.numpy(), boxes, strict=True):
         for dy in range(side):
             for dx in range(side):
                 y, x = y0 + dy, x0 + dx
@@ -183,8 +183,8 @@ def test_segment_frame_shapes_and_anchor_count():
     model = RadarCameraSegNet(TINY).eval()
     image, _ = rectangle_image()
     uv = np.random.default_rng(0).uniform([20, 14], [44, 34], size=(12, 2))
-    result = segment_frame(model, image, radar_at_pixels(uv, 10.0, np.ones(12, bool)), SegInferConfig(num_anchors=8, anchor_sampling="random"),
-                           frame_rng(0, 0))
+    result = segment_frame(model, image, radar_at_pixels(uv, 10.0, np.ones(12, bool)),
+                           SegInferConfig(num_anchors=8, anchor_sampling="random"), frame_rng(0, 0))
     assert result.prob.shape == (48, 64) and result.anchors.shape == (8, 2) and result.boxes.shape == (8, 4)
     assert 0 <= result.prob.min() and result.prob.max() <= 1
 
@@ -225,7 +225,7 @@ def test_overfitting_a_tiny_batch_decreases_the_loss():
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     rng = np.random.default_rng(0)
     batch = [training_patches(f, config, rng, "cpu", torch.float32) for f in _rectangle_frames(2)]
-    patches, points, valid, target = (torch.cat(parts) for parts in zip(*batch))
+    patches, points, valid, target = (torch.cat(parts) for parts in zip(*batch, strict=True))
     losses = []
     for _ in range(40):
         loss = segmentation_loss(model(patches, points, valid), target, 1.0)["total"]

@@ -120,7 +120,7 @@ def scene_labels(paths: Sequence[Path], reserved: Sequence[str] = ()) -> list[st
     parts = [p.parts[1:] for p in resolved]
     depth = [1] * len(paths)
     while True:
-        labels = ["-".join(part[-d:]) for part, d in zip(parts, depth)]
+        labels = ["-".join(part[-d:]) for part, d in zip(parts, depth, strict=True)]
         counts = Counter(labels + list(reserved))
         clashing = [i for i, label in enumerate(labels) if counts[label] > 1]
         if not clashing:
@@ -162,6 +162,6 @@ def resolve_scenes(scene_dirs: Sequence[Path], synth_seeds: Sequence[int], synth
     prepared = [check_scene(Path(s)) for s in scene_dirs]
     synth_labels = [f"seed{seed}" for seed in synth_seeds]
     labels = scene_labels(scene_dirs, reserved=synth_labels)
-    scenes = [BenchScene(label, Path(s), p) for label, s, p in zip(labels, scene_dirs, prepared)]
+    scenes = [BenchScene(label, Path(s), p) for label, s, p in zip(labels, scene_dirs, prepared, strict=True)]
     scenes += [synth_scene(seed, synth_preset, out / SCENES_DIR, log) for seed in synth_seeds]
     return scenes

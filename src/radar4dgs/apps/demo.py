@@ -11,7 +11,8 @@ from radar4dgs.config import PresetName, preset
 
 @dataclass
 class DemoCommand:
-    """Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, train, evaluate."""
+    """Run the whole pipeline on a synthetic scene: synthesise, inspect, prepare, score the front end, train, evaluate.
+    """
 
     out: Path = Path("runs/demo")  # folder for the scene and every output
     preset: PresetName = "small"  # scene and pipeline size: tiny (seconds), small (CPU default), paper (GPU)

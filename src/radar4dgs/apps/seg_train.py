@@ -46,7 +46,8 @@ class SegTrainCommand:
     synth_preset: PresetName = "small"  # preset of the generated synthetic scenes
     synth_cache: Path | None = None  # where generated scenes are kept (default: OUT/scenes)
     val_scenes: tuple[Path, ...] = ()  # validation scenes; default: the last training scene is held out
-    prepared: tuple[Path, ...] = ()  # prepared folders (radar/<frame>.npz), one per --scenes entry, for dynamic_source=prepared/auto
+    # prepared folders (radar/<frame>.npz), one per --scenes entry, for dynamic_source=prepared/auto
+    prepared: tuple[Path, ...] = ()
     resume: bool = False  # continue from OUT/last.pt
     preset: PresetName = "small"  # fills the training options below
     train: SegTrainConfig = field(default_factory=SegTrainConfig)  # training options

@@ -100,20 +100,20 @@ def score_frames(scene, depths: Sequence[np.ndarray], skies: Sequence[np.ndarray
                     "scale_error_median": None, "sky_iou": None}
     if scene.has("gt/depth"):
         truths = [scene.load_optional("gt/depth", i) for i in range(len(depths))]
-        errors = [frame_depth_errors(d, g) for d, g in zip(depths, truths)]
+        errors = [frame_depth_errors(d, g) for d, g in zip(depths, truths, strict=True)]
         result["depth_absrel"] = _mean([e["absrel"] for e in errors])
         result["depth_rmse"] = _mean([e["rmse"] for e in errors])
         result["depth_delta1"] = _mean([e["delta1"] for e in errors])
         result["depth_coverage"] = _mean([e["coverage"] for e in errors])
         result["depth_absrel_frames"] = [e["absrel"] for e in errors]
-        result["depth_ratio_jitter"] = ratio_jitter([_median_ratio(d, g) for d, g in zip(depths, truths)])
+        result["depth_ratio_jitter"] = ratio_jitter([_median_ratio(d, g) for d, g in zip(depths, truths, strict=True)])
         result["depth_ratio_jitter_dynamic"] = None
         if scene.has("gt/dynamic_mask"):
             result["depth_ratio_jitter_dynamic"] = ratio_jitter(
                 [_median_ratio(d, g, np.asarray(scene.load_optional("gt/dynamic_mask", i)) > 0)
-                 for i, (d, g) in enumerate(zip(depths, truths))])
+                 for i, (d, g) in enumerate(zip(depths, truths, strict=True))])
         if relatives is not None and scales is not None:
-            scale_errors = [frame_scale_error(x, g, a) for x, g, a in zip(relatives, truths, scales)]
+            scale_errors = [frame_scale_error(x, g, a) for x, g, a in zip(relatives, truths, scales, strict=True)]
             if all(e is not None for e in scale_errors):
                 result["scale_error_median"] = float(np.median(scale_errors))
     if skies is not None and scene.has("gt/sky_mask"):

@@ -54,7 +54,7 @@ class RadarPairs:
         return self.reason == VALID
 
     def reason_counts(self) -> dict[str, int]:
-        return {REASONS[k]: int(n) for k, n in zip(*np.unique(self.reason, return_counts=True))}
+        return {REASONS[k]: int(n) for k, n in zip(*np.unique(self.reason, return_counts=True), strict=True)}
 
 
 @dataclass

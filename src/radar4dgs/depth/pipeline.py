@@ -53,9 +53,10 @@ def static_mask(scene, index: int, num_points: int, radar_dir: str | Path | None
     """(N,) bool static-point mask of frame ``index`` and where it came from.
 
     In order: ``<radar_dir>/<frame>.npz`` key ``dynamic`` (the radar stage's output,
-    ``<prepared>/radar``; rows aligned with ``scene.load_radar``); else the radar front end (``radar4dgs.radar.estimate_ego_motion`` and
-    ``classify_dynamic``) on ``scan``; else every point (the robust fits reject moving points as
-    outliers, but less reliably), which the caller should warn about.
+    ``<prepared>/radar``; rows aligned with ``scene.load_radar``); else the radar front end
+    (``radar4dgs.radar.estimate_ego_motion`` and ``classify_dynamic``) on ``scan``; else every
+    point (the robust fits reject moving points as outliers, but less reliably), which the caller
+    should warn about.
     """
     if radar_dir is not None:
         path = Path(radar_dir) / f"{scene.frames[index].name}.npz"

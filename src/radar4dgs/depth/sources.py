@@ -164,7 +164,8 @@ def load_depth_anything(model: str | Path, local_files_only: bool = False) -> tu
         network = AutoModelForDepthEstimation.from_pretrained(name, local_files_only=local_files_only)
         processor = AutoImageProcessor.from_pretrained(name, local_files_only=local_files_only)
     except (OSError, ValueError) as exc:
-        raise DepthModelError(f"cannot load depth model {model!r} ({str(exc).splitlines()[0]}).\n{WEIGHTS_HELP}") from exc
+        raise DepthModelError(f"cannot load depth model {model!r} ({str(exc).splitlines()[0]}).\n"
+                              f"{WEIGHTS_HELP}") from exc
     return network, processor
 
 

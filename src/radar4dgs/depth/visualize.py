@@ -85,4 +85,4 @@ def depth_figure(image: np.ndarray, fit: FrameFit, depth: np.ndarray, truth: np.
         panels.append(error_image(depth, truth))
     if upscale > 1:
         panels = [cv2.resize(p, None, fx=upscale, fy=upscale, interpolation=cv2.INTER_NEAREST) for p in panels]
-    return np.concatenate([_label(p, t) for p, t in zip(panels, labels)], axis=1)
+    return np.concatenate([_label(p, t) for p, t in zip(panels, labels, strict=False)], axis=1)

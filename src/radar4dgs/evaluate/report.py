@@ -181,7 +181,7 @@ def _per_frame_section(per_frame: Mapping[str, Sequence[Mapping[str, Any]]]) -> 
     plotted = False
     for split, entries in series.items():
         xs, ys = [], []
-        for (x, label), entry in zip(keyed[split], entries):
+        for (x, label), entry in zip(keyed[split], entries, strict=True):
             y = _number(entry.get("psnr"))
             if y is not None:
                 xs.append(x if numeric else order[label])

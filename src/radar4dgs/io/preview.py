@@ -97,13 +97,14 @@ def doppler_colors(v_r: np.ndarray, limit: float) -> np.ndarray:
 def draw_radar_overlay(image: np.ndarray, uv: np.ndarray, colors: np.ndarray, radius: int) -> np.ndarray:
     """Copy of (H, W, 3) RGB ``image`` with (N, 2) pixel positions drawn as outlined dots."""
     canvas = image.copy()
-    for (u, v), color in zip(np.round(uv).astype(int), colors):
+    for (u, v), color in zip(np.round(uv).astype(int), colors, strict=True):
         cv2.circle(canvas, (int(u), int(v)), radius + 1, (0, 0, 0), -1, cv2.LINE_AA)
         cv2.circle(canvas, (int(u), int(v)), radius, tuple(int(c) for c in color), -1, cv2.LINE_AA)
     return canvas
 
 
-def contact_sheet(scene: Scene, num_frames: int = 4, tile_width: int = 480, v_r_limit: float | None = None) -> np.ndarray:
+def contact_sheet(scene: Scene, num_frames: int = 4, tile_width: int = 480,
+                  v_r_limit: float | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB grid of ``num_frames`` evenly spaced frames with the radar points
     projected and coloured by raw ``v_r`` (blue approaching, red receding), and a legend row."""
     indices = np.unique(np.linspace(0, len(scene) - 1, min(num_frames, len(scene))).round().astype(int))
@@ -116,7 +117,7 @@ def contact_sheet(scene: Scene, num_frames: int = 4, tile_width: int = 480, v_r_
         all_v = np.concatenate([s.v_r for s in scans]) if scans else np.zeros(0)
         v_r_limit = float(np.percentile(np.abs(all_v), 95)) if len(all_v) else 1.0
     tiles = []
-    for index, scan in zip(indices, scans):
+    for index, scan in zip(indices, scans, strict=True):
         image = cv2.resize(scene.load_image(int(index)), (tile_width, tile_height), interpolation=cv2.INTER_AREA)
         points = radar_points_in_camera(scene, int(index), scan.xyz.astype(np.float64))
         uv, z = scene.camera.project(points)
@@ -126,8 +127,9 @@ def contact_sheet(scene: Scene, num_frames: int = 4, tile_width: int = 480, v_r_
         order = np.argsort(-z[visible])
         tile = draw_radar_overlay(image, uv[visible][order], doppler_colors(scan.v_r[visible][order], v_r_limit),
                                   radius=max(2, tile_width // 160))
-        label = f"{scene.frames[int(index)].name}  t={scene.frames[int(index)].timestamp - scene.frames[0].timestamp:.2f}s" \
-                f"  {int(visible.sum())}/{len(scan)} radar pts"
+        label = (f"{scene.frames[int(index)].name}"
+                 f"  t={scene.frames[int(index)].timestamp - scene.frames[0].timestamp:.2f}s"
+                 f"  {int(visible.sum())}/{len(scan)} radar pts")
         cv2.rectangle(tile, (0, 0), (tile_width, 22), (0, 0, 0), -1)
         cv2.putText(tile, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)

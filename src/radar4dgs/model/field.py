@@ -129,8 +129,8 @@ class DeformationField(nn.Module):
         super().__init__()
         self.config = config or FieldConfig()
         time_dim = 1 + 2 * self.config.time_frequencies
-        self.layers = nn.ModuleList(CouplingLayer(l % 3, time_dim, self.config)
-                                    for l in range(self.config.num_layers))
+        self.layers = nn.ModuleList(CouplingLayer(i % 3, time_dim, self.config)
+                                    for i in range(self.config.num_layers))
         # Normalisation of the dynamic region: x_n = (x - centre) / scale. Buffers, so they follow
         # .to(dtype/device) and are saved in the state dict.
         self.register_buffer("centre", torch.zeros(3))

@@ -40,7 +40,7 @@ class SkyEnvironment(nn.Module):
         """A map initialised to the mean colour of the sky pixels of uint8 (H, W, 3) ``images``
         under bool (H, W) ``sky_masks`` (grey when there is no sky pixel)."""
         total, count = np.zeros(3), 0
-        for image, mask in zip(images, sky_masks):
+        for image, mask in zip(images, sky_masks, strict=True):
             pixels = np.asarray(image)[np.asarray(mask, dtype=bool)]
             total += pixels.reshape(-1, 3).astype(np.float64).sum(axis=0) / 255.0
             count += len(pixels)

@@ -42,7 +42,7 @@ def frame_pairs(scene, skip_test_frames: bool = True) -> list[tuple[int, int]]:
     """(i, j) pairs of consecutive frames; with ``skip_test_frames`` only training frames, each
     paired with the next training frame (test images stay unseen)."""
     indices = scene.train_indices if skip_test_frames else list(range(len(scene)))
-    return list(zip(indices[:-1], indices[1:]))
+    return list(zip(indices[:-1], indices[1:], strict=True))
 
 
 def load_depth(scene, index: int, source: str, prepared_dir: str | Path | None,

@@ -50,7 +50,7 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
     u_in, v_in = (u >= 0) & (u < width), (v >= 0) & (v < height)
     u, v = np.clip(u, 0, width - 1), np.clip(v, 0, height - 1)
     errors = np.empty((len(offsets), len(offsets)))
-    for row, (v_row, v_ok) in enumerate(zip(v, v_in)):
+    for row, (v_row, v_ok) in enumerate(zip(v, v_in, strict=True)):
         diff = np.abs(source[None] - b[v_row[None], u])
         errors[row] = np.where(v_ok[None] & u_in, diff, 255.0).mean(axis=1)
     y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)

@@ -66,7 +66,7 @@ def smooth_velocities(timestamps: np.ndarray, fits: list[EgoMotion], config: Rad
         else:
             # Inverse-covariance weighted mean: a noisy frame pulls less.
             info = [np.linalg.pinv(fits[j].covariance) for j in window]
-            out[i] = np.linalg.pinv(sum(info)) @ sum(m @ raw[j] for m, j in zip(info, window))
+            out[i] = np.linalg.pinv(sum(info)) @ sum(m @ raw[j] for m, j in zip(info, window, strict=True))
     return out
 
 
@@ -98,7 +98,7 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     velocities = smooth_velocities(stamps, fits, config)
 
     frames = []
-    for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points)):
+    for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points, strict=True)):
         used = dataclasses.replace(fit, velocity=velocities[i])
         if not np.all(np.isfinite(used.covariance)) and np.all(np.isfinite(used.velocity)):
             # Filled-in frame: no own covariance; borrow a loose one so thresholds stay finite.

@@ -144,7 +144,7 @@ class _RasterizePixels(torch.autograd.Function):
             # Entries "after" the last one: the background (colour += T bg) and the alpha
             # output (alpha = 1 - T, so dL/dT from grad_tfinal): both scale with T_final.
             later = t_final * (torch.bmm(grad_px, bg_tile[:, :, None]).squeeze(-1) + grad_tfinal)
-            for chunk, blocks in zip(plan.chunks, ctx.saved_blocks):
+            for chunk, blocks in zip(plan.chunks, ctx.saved_blocks, strict=True):
                 if plan.checkpoint:
                     blocks = forward_chunk(chunk, prm, col, plan.mono, plan.block_k,
                                            None, None, keep=True)  # fmt: skip

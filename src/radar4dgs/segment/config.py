@@ -17,12 +17,14 @@ class SegModelConfig:
 
     backbone: Literal["resnet18", "resnet34"] = "resnet18"  # torchvision ResNet block layout, truncated after layer3
     backbone_width: int = 32  # channels of layer1 (layer2 ×2, layer3 ×4); 64 = torchvision, needed for ImageNet weights
-    input_size: int = 48  # side (px) every patch is resized to before the network, a multiple of 16 (43 px patches at 320x180)
+    # side (px) every patch is resized to before the network, a multiple of 16 (43 px patches at 320x180)
+    input_size: int = 48
     attention_layers: int = 2  # number of (self, cross) attention pairs, LoFTR-style
     attention_heads: int = 4  # heads of the linear attention; the token width must divide by it
     decoder_width: int = 32  # channels of the U-Net decoder's first (coarsest) stage, halved per stage down to 16
     radar_hidden: int = 64  # width of the per-point radar MLP before mean pooling
-    use_rcs: bool = False  # feed the radar cross-section (dataset-specific scale: off so a synthetic-trained model transfers)
+    # feed the radar cross-section (dataset-specific scale: off so a synthetic-trained model transfers)
+    use_rcs: bool = False
 
     PRESETS = {
         "tiny": {"backbone_width": 8, "input_size": 32, "attention_layers": 1, "decoder_width": 8, "radar_hidden": 16},
@@ -46,13 +48,17 @@ class SegInferConfig:
     # (pipeline radar), cover sampling with 64 anchors at 0.6 of the patch size left 5.0 % of the
     # moving pixels unmarked against 10.8 % (mask IoU 0.906 against 0.875), at 0.10 s a frame.
     num_anchors: int = 64  # most anchors per frame (fewer if fewer dynamic points, or cover stops earlier)
-    anchor_sampling: AnchorSampling = "cover"  # random (paper), farthest (FPS in the image), cover (no two anchors within cover_radius)
+    # random (paper), farthest (FPS in the image), cover (no two anchors within cover_radius)
+    anchor_sampling: AnchorSampling = "cover"
     cover_radius: float = 0.1  # for "cover": minimum anchor spacing, as a fraction of the patch side
     patch_scale: float = 0.6  # patch side = round(256 * W / 1920 * this) px (26 px at 320x180; paper: 1.0)
     max_points: int = 64  # radar points per patch fed to the network (nearest to the anchor kept)
-    anchor_connected: bool = False  # keep, per patch, only the above-threshold regions touching the anchor (within anchor_radius)
-    anchor_radius: float = 0.08  # for anchor_connected: tolerance around the anchor pixel, as a fraction of the patch side
-    dynamic_source: DynamicSource = "auto"  # where dynamic radar points come from: prepared radar/, estimate, oracle (gt)
+    # keep, per patch, only the above-threshold regions touching the anchor (within anchor_radius)
+    anchor_connected: bool = False
+    # for anchor_connected: tolerance around the anchor pixel, as a fraction of the patch side
+    anchor_radius: float = 0.08
+    # where dynamic radar points come from: prepared radar/, estimate, oracle (gt)
+    dynamic_source: DynamicSource = "auto"
     seed: int = 0  # anchor sampling seed (frame i uses seed + i, so masks are reproducible)
     save_prob: bool = True  # also write <frame>_prob.npy (float16 pasted probabilities)
     device: str = "cpu"  # torch device for the network
@@ -66,7 +72,8 @@ class AugmentConfig:
 
     drop_points: float = 0.3  # each frame drops a fraction of its radar points drawn uniformly in [0, this]
     velocity_noise: float = 0.3  # std of Gaussian noise added to the compensated radial velocity (m/s)
-    misalign_px: float = 2.0  # std of a per-frame shift of all projected radar points (px at 320 px width; scaled with W)
+    # std of a per-frame shift of all projected radar points (px at 320 px width; scaled with W)
+    misalign_px: float = 2.0
     point_jitter_px: float = 0.7  # std of an independent per-point shift (px at 320 px width)
     false_dynamic: float = 0.5  # chance per frame that a few static points in view are flagged dynamic
     false_dynamic_max: int = 3  # at most this many falsely flagged points per such frame
@@ -88,10 +95,12 @@ class SegTrainConfig:
     num_anchors: int = 8  # anchors per frame (fewer if fewer dynamic points)
     patch_scale: float = 1.0  # patch side = round(256 * W / 1920 * this)
     max_points: int = 64  # radar points per patch
-    dynamic_source: DynamicSource = "auto"  # dynamic radar points: prepared, estimate (radar front end), oracle (gt labels)
+    # dynamic radar points: prepared, estimate (radar front end), oracle (gt labels)
+    dynamic_source: DynamicSource = "auto"
     val_every: int = 2  # validate on every this-th frame of the validation scenes
     time_limit_min: float | None = None  # stop after this many minutes (then validate and checkpoint)
-    pretrained_backbone: Path | None = None  # torchvision ImageNet ResNet state_dict (.pth) to start from; needs model.backbone_width=64
+    # torchvision ImageNet ResNet state_dict (.pth) to start from; needs model.backbone_width=64
+    pretrained_backbone: Path | None = None
     num_threads: int = 1  # torch CPU threads (1 leaves the rest of a shared machine free)
     device: str = "cpu"  # torch device
     seed: int = 0  # initialisation, shuffling, augmentation

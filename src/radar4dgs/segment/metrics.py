@@ -93,7 +93,7 @@ def mask_scores(scene: Scene, masks: list[np.ndarray],
     gts, parked_cars = truth if truth is not None else ground_truth_masks(scene, len(masks))
     inter = union = gt_pixels = parked = parked_marked = 0
     has_parked = True
-    for pred, gt, cars in zip(masks, gts, parked_cars):
+    for pred, gt, cars in zip(masks, gts, parked_cars, strict=True):
         inter += int((pred & gt).sum())
         union += int((pred | gt).sum())
         gt_pixels += int(gt.sum())

@@ -14,9 +14,9 @@ The attention is LoFTR's linear attention (Katharopoulos et al. 2020, feature ma
 written here from the formulas; LoFTR's code is not a dependency.
 
 CPU choices (documented in the README and the weights card): the patch is resized to a fixed
-network input (``input_size``, 48 by default: 43 px patches at 320×180); the ResNet is truncated after layer3 (layer4 would
-work on a 2×2 grid at that size) and may be narrowed with ``backbone_width`` (64 = torchvision's
-width, the only one that accepts ImageNet weights).
+network input (``input_size``, 48 by default: 43 px patches at 320×180); the ResNet is
+truncated after layer3 (layer4 would work on a 2×2 grid at that size) and may be narrowed with
+``backbone_width`` (64 = torchvision's width, the only one that accepts ImageNet weights).
 """
 
 from __future__ import annotations
@@ -106,7 +106,8 @@ class RadarImageFusion(nn.Module):
 
     def forward(self, image: torch.Tensor, radar: torch.Tensor) -> torch.Tensor:
         """image: (B, L, C) tokens; radar: (B, R, C) tokens (R = 1 here). Returns fused (B, L, C)."""
-        for self_layer, to_image, to_radar in zip(self.self_layers, self.image_from_radar, self.radar_from_image):
+        for self_layer, to_image, to_radar in zip(self.self_layers, self.image_from_radar, self.radar_from_image,
+                                                  strict=True):
             image = self_layer(image, image)
             # LoFTR updates both sides of a cross layer from the same inputs.
             image, radar = to_image(image, radar), to_radar(radar, image)
@@ -118,7 +119,8 @@ def sine_positional_encoding(channels: int, height: int, width: int, device: tor
     """(channels, height, width) 2D sinusoidal encoding (LoFTR / DETR style), so that attention
     knows where each token sits relative to the patch centre (the anchor)."""
     quarter = channels // 4
-    freqs = torch.exp(torch.arange(quarter, device=device, dtype=torch.float32) * (-math.log(10000.0) / max(quarter, 1)))
+    freqs = torch.exp(torch.arange(quarter, device=device, dtype=torch.float32)
+                      * (-math.log(10000.0) / max(quarter, 1)))
     ys = torch.arange(height, device=device, dtype=torch.float32)[:, None, None] * freqs  # (H, 1, Q)
     xs = torch.arange(width, device=device, dtype=torch.float32)[None, :, None] * freqs  # (1, W, Q)
     ys, xs = ys.expand(height, width, quarter), xs.expand(height, width, quarter)
@@ -186,7 +188,8 @@ class UNetDecoder(nn.Module):
         super().__init__()
         stem_c, c1, c2, c3 = encoder_channels
         w = [max(width // 2 ** i, 16) for i in range(4)]
-        self.full_res = nn.Sequential(nn.Conv2d(3, 16, 3, padding=1, bias=False), nn.BatchNorm2d(16), nn.ReLU(inplace=True))
+        self.full_res = nn.Sequential(nn.Conv2d(3, 16, 3, padding=1, bias=False), nn.BatchNorm2d(16),
+                                      nn.ReLU(inplace=True))
         self.up3 = conv_block(c3 + c2, w[0])  # → stride 8
         self.up2 = conv_block(w[0] + c1, w[1])  # → stride 4
         self.up1 = conv_block(w[1] + stem_c, w[2])  # → stride 2

@@ -152,7 +152,8 @@ def extract_patches(image: torch.Tensor, boxes: np.ndarray, size: int) -> torch.
         return image.new_zeros((0, image.shape[0], size, size))
     # roi_align replicates the border for samples less than a pixel outside the image; explicit
     # zero padding makes "outside reads 0" exact.
-    pad = int(max(0, -boxes[:, :2].min(), (boxes[:, 2] - image.shape[2]).max(), (boxes[:, 3] - image.shape[1]).max())) + 1
+    pad = int(max(0, -boxes[:, :2].min(), (boxes[:, 2] - image.shape[2]).max(),
+                  (boxes[:, 3] - image.shape[1]).max())) + 1
     padded = F.pad(image, (pad, pad, pad, pad))
     rois = torch.zeros((len(boxes), 5), dtype=image.dtype, device=image.device)
     rois[:, 1:] = torch.as_tensor(boxes + pad, dtype=image.dtype, device=image.device)
@@ -184,9 +185,10 @@ def radar_features(radar: RadarFrame, boxes: np.ndarray, anchors: np.ndarray, ma
     features = np.zeros((k, max_points, NUM_RADAR_FEATURES), np.float32)
     valid = np.zeros((k, max_points), bool)
     pix = pixel_index(radar.uv)
-    for row, (box, anchor) in enumerate(zip(boxes, anchors)):
+    for row, (box, anchor) in enumerate(zip(boxes, anchors, strict=True)):
         side = float(box[2] - box[0])
-        inside = np.flatnonzero((pix[:, 0] >= box[0]) & (pix[:, 0] < box[2]) & (pix[:, 1] >= box[1]) & (pix[:, 1] < box[3]))
+        inside = np.flatnonzero((pix[:, 0] >= box[0]) & (pix[:, 0] < box[2])
+                                & (pix[:, 1] >= box[1]) & (pix[:, 1] < box[3]))
         offset = radar.uv[inside] - radar.uv[anchor]
         if len(inside) > max_points:
             keep = np.argsort(np.linalg.norm(offset, axis=1), kind="stable")[:max_points]
@@ -214,7 +216,7 @@ def paste_max(patches: torch.Tensor, boxes: np.ndarray, height: int, width: int)
     """Paste (K, s, s) patch maps into an (H, W) map by per-pixel maximum; parts outside the
     image are dropped; pixels no patch covers are 0."""
     out = patches.new_zeros((height, width))
-    for patch, (x0, y0, x1, y1) in zip(patches, boxes.tolist()):
+    for patch, (x0, y0, x1, y1) in zip(patches, boxes.tolist(), strict=True):
         cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
         if cx0 >= cx1 or cy0 >= cy1:
             continue

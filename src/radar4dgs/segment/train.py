@@ -60,12 +60,14 @@ def jitter_colour(image: np.ndarray, amount: float, rng: np.random.Generator) ->
 def augment_radar(radar: RadarFrame, width: int, height: int, config: AugmentConfig,
                   rng: np.random.Generator) -> RadarFrame:
     """Dropped points, velocity noise, misalignment and false dynamic flags (module doc)."""
-    keep = rng.random(len(radar)) >= rng.uniform(0, config.drop_points) if config.drop_points > 0 else np.ones(len(radar), bool)
+    keep = (rng.random(len(radar)) >= rng.uniform(0, config.drop_points) if config.drop_points > 0
+            else np.ones(len(radar), bool))
     radar = radar.subset(keep)
     scale = width / 320.0
     uv = radar.uv + rng.normal(0, config.misalign_px * scale, size=2) + rng.normal(
         0, config.point_jitter_px * scale, size=radar.uv.shape)
-    v = radar.v_comp + rng.normal(0, config.velocity_noise, size=len(radar)) if config.velocity_noise > 0 else radar.v_comp
+    v = (radar.v_comp + rng.normal(0, config.velocity_noise, size=len(radar)) if config.velocity_noise > 0
+         else radar.v_comp)
     dynamic = radar.dynamic.copy()
     if config.false_dynamic > 0 and rng.random() < config.false_dynamic:
         static = np.flatnonzero(~dynamic & in_image(uv, width, height))
@@ -105,7 +107,8 @@ def training_patches(frame: TrainFrame, config: SegTrainConfig, rng: np.random.G
     if len(candidates) == 0:
         return None
     anchors = sample_anchors(radar.uv, candidates, config.num_anchors, rng, "random")
-    tensor = torch.as_tensor(jitter_colour(image, config.augment.colour_jitter, rng), device=device).permute(2, 0, 1).to(dtype)
+    tensor = torch.as_tensor(jitter_colour(image, config.augment.colour_jitter, rng),
+                             device=device).permute(2, 0, 1).to(dtype)
     side = patch_side(width, config.patch_scale)
     patches, points, valid, boxes = patch_batch(tensor, radar, anchors, side, config.model.input_size,
                                                 config.max_points, config.model.use_rcs)
@@ -189,7 +192,8 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
         rng.bit_generator.state = payload["rng_state"]
         log(f"resumed from {last} after epoch {state.epoch}")
     save_config(config, out / "config.json")
-    log(f"{count_parameters(model):,} parameters; {len(train_frames)} training frames, {len(val_frames)} validation frames")
+    log(f"{count_parameters(model):,} parameters; {len(train_frames)} training frames, "
+        f"{len(val_frames)} validation frames")
 
     start = time.perf_counter() - state.elapsed_s
     out_of_time = False
@@ -203,7 +207,7 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
             items = [item for item in items if item is not None]
             if not items:
                 continue
-            patches, points, valid, target = (torch.cat(parts) for parts in zip(*items))
+            patches, points, valid, target = (torch.cat(parts) for parts in zip(*items, strict=True))
             terms = segmentation_loss(model(patches, points, valid), target, config.dice_weight)
             if not torch.isfinite(terms["total"]):
                 raise FloatingPointError(f"non-finite loss at step {state.step}: "
@@ -219,7 +223,7 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
         state.epoch += 1
         iou = validation_iou(model, val_frames, config) if val_frames else float("nan")
         state.elapsed_s = time.perf_counter() - start
-        mean = {k: float(np.mean([l[k] for l in losses])) for k in losses[0]} if losses else {}
+        mean = {k: float(np.mean([step_loss[k] for step_loss in losses])) for k in losses[0]} if losses else {}
         entry = {"epoch": state.epoch, "step": state.step, "loss": mean, "val_iou": None if math.isnan(iou) else iou,
                  "elapsed_s": round(state.elapsed_s, 1), "partial": out_of_time}
         state.history.append(entry)

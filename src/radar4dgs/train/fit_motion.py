@@ -17,7 +17,8 @@ Evaluation: for every adjacent pair (i, i + 1), every gt-dynamic pixel with fini
 lifted to its world point x at time t_i; its predicted flow ``D_t(i+1)(D_ti^-1(x)) - x`` is compared
 with ``gt/flow`` (end-point error, metres, pooled over all pixels of all pairs).
 
-Time coordinate: ``t = (timestamp - t_first) / (t_last - t_first)`` in [0, 1] (:func:`radar4dgs.io.scene.normalized_times`).
+Time coordinate: ``t = (timestamp - t_first) / (t_last - t_first)`` in [0, 1]
+(:func:`radar4dgs.io.scene.normalized_times`).
 """
 
 from __future__ import annotations

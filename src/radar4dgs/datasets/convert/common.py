@@ -191,7 +191,7 @@ def doppler_sign(scans: Sequence[np.ndarray], frames: Sequence[Frame], camera: C
     config = config or RadarConfig()
     fits = fit_scans(scans, config, radar.radar_to_ego)
     cosines = []
-    for fit, v_pose in zip(fits, expected):
+    for fit, v_pose in zip(fits, expected, strict=True):
         speed = float(np.linalg.norm(v_pose))
         if fit.ok and not fit.standstill and speed > SIGN_MIN_SPEED and fit.speed > SIGN_MIN_SPEED:
             cosines.append(float(fit.velocity @ v_pose) / (fit.speed * speed))

@@ -239,7 +239,7 @@ def _spans(numbers: list[int]) -> str:
     if not numbers:
         return "none"
     runs, first = [], numbers[0]
-    for prev, cur in zip(numbers, numbers[1:] + [None]):
+    for prev, cur in zip(numbers, numbers[1:] + [None], strict=True):
         if cur is None or cur != prev + 1:
             runs.append(f"{first:05d}-{prev:05d}" if prev != first else f"{first:05d}")
             first = cur
@@ -360,7 +360,7 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
     scene_frames = [Frame(name=name, timestamp=n * frame_period, ego_to_world=world[i],
                           radar_timestamp=n * frame_period, radar_ego_to_world=world[i],
                           extra={"radar_older_scan_dropped": older[i], "radar_nonfinite_dropped": nonfinite[i]})
-                    for i, (name, n) in enumerate(zip(names, numbers))]
+                    for i, (name, n) in enumerate(zip(names, numbers, strict=True))]
     sign, sign_report = doppler_sign(scans, scene_frames, camera, radar_spec, folders["velodyne"], doppler)
     apply_doppler_sign(scans, sign, [3, 5])
 

@@ -27,7 +27,8 @@ class RadarSimConfig:
     """A 4D imaging radar: ray casting on an azimuth/elevation grid, then detection and noise."""
 
     mount_xyz: tuple[float, float, float] = (3.6, 0.0, 0.5)  # position in the ego frame (m): front bumper
-    misalignment_deg: tuple[float, float] = (0.5, 1.0)  # |yaw| and |pitch| mount error drawn in this range (deg), random sign; recorded exactly in radar_to_ego
+    # |yaw| and |pitch| mount error drawn in this range (deg), random sign; recorded exactly in radar_to_ego
+    misalignment_deg: tuple[float, float] = (0.5, 1.0)
     azimuth_fov_deg: float = 120.0  # full horizontal field of view (deg)
     elevation_fov_deg: float = 20.0  # full vertical field of view (deg)
     azimuth_step_deg: float = 0.5  # ray grid spacing in azimuth (deg); each ray is jittered inside its cell
@@ -68,7 +69,8 @@ class MonoPriorConfig:
     shift_range: tuple[float, float] = (0.05, 0.5)  # b, drawn once per scene (the value of the sky)
     distortion: float = 0.05  # amplitude of the smooth multiplicative distortion (0.05 = +-5 %)
     noise_std: float = 0.01  # per-pixel multiplicative Gaussian noise
-    blur_sigma: float = 0.003  # Gaussian blur of the prior, as a fraction of the image width (soft edges as a network's)
+    # Gaussian blur of the prior, as a fraction of the image width (soft edges as a network's)
+    blur_sigma: float = 0.003
     sky_jitter_px: int = 1  # the sky-mask prior grows or shrinks by up to this many pixels per frame
 
 
@@ -85,7 +87,8 @@ class SynthConfig:
     camera_xyz: tuple[float, float, float] = (1.5, 0.0, 1.5)  # camera position in the ego frame (m)
     camera_pitch_deg: float = 3.0  # camera looks down by this much (deg)
     ego_speed: tuple[float, float] = (5.0, 20.0)  # ego speed drawn in this range (m/s)
-    weave_amplitude: tuple[float, float] = (0.0, 0.6)  # lateral S-curve amplitude drawn in this range (m): gentle curves, non-zero yaw rate
+    # lateral S-curve amplitude drawn in this range (m): gentle curves, non-zero yaw rate
+    weave_amplitude: tuple[float, float] = (0.0, 0.6)
     weave_wavelength: tuple[float, float] = (60.0, 150.0)  # S-curve wavelength drawn in this range (m)
     parked_cars: tuple[int, int] = (2, 4)  # number of parked cars, inclusive range
     moving_cars: tuple[int, int] = (2, 4)  # number of moving cars, inclusive range

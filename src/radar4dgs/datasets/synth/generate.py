@@ -36,7 +36,8 @@ def validate(config: SynthConfig) -> None:
         (config.ego_speed[0] >= 0, "ego_speed must be >= 0"),
         (config.parked_cars[0] >= 0 and config.moving_cars[0] >= 0, "car counts must be >= 0"),
         (config.lidar.beams >= 1, "lidar.beams must be >= 1"),
-        (config.radar.max_points >= 0 and config.radar.ghost_count >= 0, "radar.max_points and ghost_count must be >= 0"),
+        (config.radar.max_points >= 0 and config.radar.ghost_count >= 0,
+         "radar.max_points and ghost_count must be >= 0"),
     ]
     for name in ("ego_speed", "weave_amplitude", "weave_wavelength", "parked_cars", "moving_cars"):
         lo, hi = getattr(config, name)
@@ -67,7 +68,7 @@ def _object_metadata(world: W.World, times: np.ndarray) -> list[dict]:
             "dims": [car.length, car.width, car.height], "color": np.round(car.color, 4).tolist(),
             "speed": car.speed, "velocity": (to_world[:3, :3] @ car.velocity).tolist(),
             "boxes": [{"center": c.tolist(), "half_size": h.tolist(), "part": W.MATERIAL_NAMES[m]}
-                      for c, h, m in zip(car.local_center, car.local_half, car.local_material)],
+                      for c, h, m in zip(car.local_center, car.local_half, car.local_material, strict=True)],
             "poses": [(to_world @ car.pose(float(t))).tolist() for t in times]})
     return objects
 

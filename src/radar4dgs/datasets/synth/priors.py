@@ -13,7 +13,8 @@ from radar4dgs.datasets.synth.texture import ValueNoise, value_noise
 def distortion_field(noise: ValueNoise, width: int, height: int, amplitude: float, time: float) -> np.ndarray:
     """(H, W) smooth field in [-amplitude, amplitude]: a few blobs across the image, drifting slowly."""
     u, v = np.meshgrid(np.linspace(0.0, 2.5, width), np.linspace(0.0, 1.6, height))
-    raw = value_noise(noise, u + 0.05 * time + 11.0, v + 7.0) + 0.5 * value_noise(noise, 2 * u + 3.0, 2 * v - 0.03 * time)
+    raw = (value_noise(noise, u + 0.05 * time + 11.0, v + 7.0)
+           + 0.5 * value_noise(noise, 2 * u + 3.0, 2 * v - 0.03 * time))
     raw = raw - raw.mean()
     peak = np.abs(raw).max()
     return raw / peak * amplitude if peak > 0 else raw

@@ -145,7 +145,8 @@ def albedo(world: W.World, material: np.ndarray, obj: np.ndarray, prim: np.ndarr
         elif mat == W.POLE:
             out[sel] = color[sel] * (0.8 + 0.3 * value_noise(world.noise, ps[:, 2] * 2, ps[:, 0]))[:, None]
         elif mat == W.TRUNK:
-            out[sel] = color[sel] * (0.7 + 0.6 * fbm(world.noise, ps[:, 2] * 4, ps[:, 0] + ps[:, 1], 0.3, 3, fs))[:, None]
+            bark = fbm(world.noise, ps[:, 2] * 4, ps[:, 0] + ps[:, 1], 0.3, 3, fs)
+            out[sel] = color[sel] * (0.7 + 0.6 * bark)[:, None]
         elif mat == W.FOLIAGE:
             # Two projections blended so the pattern has no preferred direction on the sphere.
             leaves = 0.5 * (fbm(world.noise, ps[:, 0], ps[:, 2], 0.5, 4, fs)

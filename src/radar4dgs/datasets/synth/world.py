@@ -128,7 +128,7 @@ class World:
         centers, rots, halves, materials, objs, colors = [], [], [], [], [], []
         for car in self.cars:
             pose = car.pose(t)
-            for c, h, m in zip(car.local_center, car.local_half, car.local_material):
+            for c, h, m in zip(car.local_center, car.local_half, car.local_material, strict=True):
                 centers.append(pose[:3, :3] @ c + pose[:3, 3])
                 rots.append(pose[:3, :3])
                 halves.append(h)
