@@ -2,8 +2,62 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
+
+
+@dataclass
+class RadarObjectConfig:
+    """Dynamic radar points grouped into objects, each object's planar velocity from its returns'
+    compensated Doppler, and constant-velocity tracking in the world (``objects.py``, ``tracking.py``)."""
+
+    # Dynamic points closer than this (m) join one object (single linkage on a cKDTree radius graph):
+    # a car's returns are at most ~1 m apart along its outline, cars in adjacent lanes ~3.5 m.
+    radius: float = 2.5
+    # Heights are multiplied by this before the distance test: elevation noise (1 deg = 0.9 m at
+    # 50 m) and multipath ghosts mirrored below the road must not split an object from its returns.
+    z_scale: float = 0.25
+    # Objects with fewer returns are not reported: one return says no more than the point's own
+    # radial velocity (already in <frame>.npz), and isolated clutter is one return.
+    min_returns: int = 2
+    # A return fits an object velocity v when |v_r_comp - d . v| is below this (m/s): 3 sigma of the
+    # Doppler noise (0.1 m/s) plus azimuth noise times the speed across the line of sight
+    # (0.005 rad x 30 m/s = 0.15 m/s).
+    inlier_threshold: float = 0.5
+    # Robust fit: every pair of returns is a hypothesis up to this many pairs, else this many random
+    # pairs (plus one radial hypothesis per return).
+    max_hypotheses: int = 300
+    # Pairs whose planar directions differ by less than this (deg) are not tried: they amplify the
+    # Doppler noise by 1 / sin(angle).
+    min_pair_angle_deg: float = 0.2
+    # Prior on the residual std (m/s), pooled with the fit's own residuals with this weight in degrees
+    # of freedom (next field), so that 2-4 returns cannot claim a tiny covariance from one lucky fit.
+    residual_prior_std: float = 0.15
+    # Weight (degrees of freedom) of `residual_prior_std` in the pooled residual variance.
+    residual_prior_dof: float = 2.0
+    # The tangential velocity (across the mean line of sight) counts as unobservable when the inlier
+    # returns' azimuths spread less than this std (deg); the estimate then falls back to radial-only.
+    min_azimuth_spread_deg: float = 1.0
+    # It also counts as unobservable when its predicted std (residual std / sqrt of the smallest
+    # eigenvalue of A^T A, A the inliers' planar directions) exceeds this (m/s).
+    max_tangential_std: float = 2.0
+    # Std (m/s) across the line of sight given to a radial-only (fallback) estimate: the speed scale of
+    # road traffic, i.e. "unknown" without being infinite for the tracker.
+    unobserved_std: float = 10.0
+    # Tracking: std (m) of the returns' centroid about a fixed point of the object: returns wander over
+    # the visible side of a car from scan to scan.
+    centroid_std: float = 1.0
+    # Tracking: white-acceleration process noise std (m/s^2) of the constant-velocity Kalman filter;
+    # ordinary traffic accelerates and brakes within +-2 m/s^2 (3 made the tracked velocity ~20 %
+    # noisier on the small synthetic scenes, 1.5 barely better).
+    accel_std: float = 2.0
+    # Tracking: a detection may update a track when its squared Mahalanobis distance (4 dof: centroid
+    # and velocity) is below this (chi-square 4 dof at 99.9 % = 18.47).
+    gate_chi2: float = 18.47
+    # Tracking: a track not updated for more than this many consecutive frames is ended (0.5 s at
+    # 10 Hz: a distant car's few returns drop out for several scans, and each new track has to learn
+    # the tangential velocity again from the centroid's motion).
+    max_missed: int = 5
 
 
 @dataclass
@@ -86,6 +140,9 @@ class RadarConfig:
     smoothing: Literal["none", "median", "mean"] = "none"
     # Scene processing: smoothing window in frames (odd).
     smoothing_window: int = 5
+    # Scene processing: dynamic points grouped into objects with a planar velocity each, tracked
+    # across frames (<prepared>/radar/objects.json).
+    objects: RadarObjectConfig = field(default_factory=RadarObjectConfig)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         "tiny": {"max_iterations": 200},

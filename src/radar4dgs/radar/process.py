@@ -6,6 +6,8 @@ Outputs (``out_dir`` is ``<prepared>/radar``):
     (3, 3), ``ok`` (bool, the frame's own fit), ``inliers`` (N,) bool, ``dynamic`` (N,) bool,
     ``v_r_comp`` (N,) float32; rows aligned with ``scene.load_radar(i)`` (NaN rows dropped).
     ``summary.json``: per-frame speed, ok, reason, and the disagreement with the scene's motion data.
+    ``objects.json``: the dynamic points grouped into tracked objects with a planar velocity each
+    (schema in :mod:`radar4dgs.radar.objects`; read it with ``load_radar_objects``).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from radar4dgs.io.atomic import atomic_write_bytes, atomic_write_json
 from radar4dgs.radar.classify import classify_dynamic
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
+from radar4dgs.radar.objects import OBJECTS_FILE, detect_objects, track_objects
 from radar4dgs.radar.poses import expected_radar_velocity, fill_gaps
 
 NPZ_KEYS = ("ego_velocity", "covariance", "ok", "inliers", "dynamic", "v_r_comp")
@@ -97,7 +100,7 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     stamps = np.array([f.radar_timestamp for f in scene.frames])
     velocities = smooth_velocities(stamps, fits, config)
 
-    frames = []
+    frames, detections = [], []
     for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points, strict=True)):
         used = dataclasses.replace(fit, velocity=velocities[i])
         if not np.all(np.isfinite(used.covariance)) and np.all(np.isfinite(used.velocity)):
@@ -107,6 +110,8 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
         _save_npz(out_dir / f"{scene.frames[i].name}.npz", ego_velocity=used.velocity.astype(np.float64),
                   covariance=used.covariance.astype(np.float64), ok=np.bool_(fit.ok),
                   inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32))
+        detections.append(detect_objects(xyz, comp, dynamic, scene.radar_to_world(i), config.objects,
+                                         seed=config.seed + i))
         frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
                        "points": int(len(xyz)), "inliers": int(fit.inliers.sum()),
                        "dynamic": int(dynamic.sum()), "speed": _finite_or_none(used.speed),
@@ -121,6 +126,8 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
         errs = summary["disagreement"].get("per_frame")
         entry["disagreement"] = None if errs is None else errs[i]
     atomic_write_json(out_dir / "summary.json", summary)
+    names = [f.name for f in scene.frames]
+    atomic_write_json(out_dir / OBJECTS_FILE, track_objects(names, stamps, detections, config.objects))
     return summary
 
 

@@ -1,0 +1,239 @@
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radar4dgs.radar.config import RadarConfig, RadarObjectConfig
+from radar4dgs.radar.objects import (
+    OBJECTS_FILE,
+    cluster_points,
+    detect_objects,
+    fit_planar_velocity,
+    load_radar_objects,
+    track_objects,
+)
+from radar4dgs.radar.tracking import track_detections
+
+
+def car_returns(rng, centre, n, length=4.5, width=1.8):
+    """(n, 3) points on the outline of a car footprint at ``centre`` (2,), heights 0.3-1.4 m."""
+    side = rng.integers(0, 4, n)
+    s = rng.uniform(-0.5, 0.5, n)
+    local = np.where(side[:, None] < 2,
+                     np.stack([s * length, np.where(side == 0, 0.5, -0.5) * width], axis=1),
+                     np.stack([np.where(side == 2, 0.5, -0.5) * length, s * width], axis=1))
+    return np.column_stack([local + centre, rng.uniform(0.3, 1.4, n)])
+
+
+def planar_system(points, velocity, noise=0.0, rng=None):
+    """(N, 2) planar parts of the unit directions origin -> points and (N,) exact (or noisy) d . v."""
+    d = points / np.linalg.norm(points, axis=1, keepdims=True)
+    b = d[:, :2] @ np.asarray(velocity, float)
+    if noise:
+        b = b + rng.normal(0.0, noise, len(b))
+    return d[:, :2], b
+
+
+def test_exact_doppler_recovers_the_planar_velocity():
+    rng = np.random.default_rng(0)
+    A, b = planar_system(car_returns(rng, np.array([15.0, 4.0]), 20), [3.0, -7.0])
+    fit = fit_planar_velocity(A, b)
+    assert fit.observable and fit.inliers.all()
+    np.testing.assert_allclose(fit.velocity, [3.0, -7.0], atol=1e-9)
+    # The radial-only baseline only sees the component along the mean line of sight.
+    assert fit.radial_velocity @ np.array([-fit.direction[1], fit.direction[0]]) == pytest.approx(0.0, abs=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(vx=st.floats(-25, 25), vy=st.floats(-25, 25), rng_m=st.floats(6.0, 30.0),
+       azimuth=st.floats(-1.0, 1.0), n=st.integers(4, 40), seed=st.integers(0, 2 ** 16))
+def test_exact_recovery_wherever_the_object_is(vx, vy, rng_m, azimuth, n, seed):
+    rng = np.random.default_rng(seed)
+    centre = rng_m * np.array([math.cos(azimuth), math.sin(azimuth)])
+    A, b = planar_system(car_returns(rng, centre, n), [vx, vy])
+    fit = fit_planar_velocity(A, b, rng=rng)
+    assert fit.inliers.all()
+    if fit.observable:
+        np.testing.assert_allclose(fit.velocity, [vx, vy], atol=1e-7)
+    else:
+        # Only a corner seen end-on: the fallback is radial and says so in its covariance.
+        assert np.linalg.eigvalsh(fit.covariance)[-1] == pytest.approx(100.0, rel=1e-6)
+
+
+def test_covariance_is_calibrated_under_noise():
+    rng = np.random.default_rng(1)
+    config = RadarObjectConfig()
+    sigma, v = 0.1, np.array([8.0, 5.0])
+    nees, errors, predicted = [], [], []
+    for _ in range(400):
+        A, b = planar_system(car_returns(rng, np.array([18.0, -6.0]), 15), v, sigma, rng)
+        fit = fit_planar_velocity(A, b, config, rng)
+        assert fit.observable
+        e = fit.velocity - v
+        nees.append(e @ np.linalg.solve(fit.covariance, e))
+        errors.append(e)
+        predicted.append(fit.covariance)
+    # A calibrated 2x2 covariance gives a mean squared Mahalanobis error of 2 (chi-square, 2 dof);
+    # a factor 1.5 in std either way is 2 / 2.25 .. 2 * 2.25.
+    assert 2 / 1.5 ** 2 < np.mean(nees) < 2 * 1.5 ** 2
+    # The error scales as predicted along the worst-determined (tangential) direction too.
+    worst = np.linalg.eigh(np.mean(predicted, axis=0))[1][:, -1]
+    spread = np.std(np.array(errors) @ worst)
+    expected = math.sqrt(worst @ np.mean(predicted, axis=0) @ worst)
+    assert expected / 1.5 < spread < expected * 1.5
+
+
+def test_outliers_are_rejected():
+    rng = np.random.default_rng(2)
+    v = np.array([-4.0, 9.0])
+    A, b = planar_system(car_returns(rng, np.array([12.0, 3.0]), 30), v, 0.05, rng)
+    bad = rng.choice(30, 6, replace=False)                         # 20 %
+    b[bad] += rng.choice([-1.0, 1.0], 6) * rng.uniform(2.0, 15.0, 6)
+    fit = fit_planar_velocity(A, b)
+    assert not fit.inliers[bad].any() and fit.inliers.sum() == 24
+    assert np.linalg.norm(fit.velocity - v) < 3 * math.sqrt(np.trace(fit.covariance))
+
+
+def test_narrow_azimuth_spread_falls_back_to_radial():
+    rng = np.random.default_rng(3)
+    azimuth = rng.uniform(0.300, 0.305, 8)                          # 0.3 deg wide at 80 m
+    points = np.column_stack([80 * np.cos(azimuth), 80 * np.sin(azimuth), np.full(8, 1.0)])
+    v = np.array([2.0, 6.0])
+    A, b = planar_system(points, v, 0.05, rng)
+    fit = fit_planar_velocity(A, b)
+    assert not fit.observable and math.degrees(fit.azimuth_spread) < 0.5
+    np.testing.assert_array_equal(fit.velocity, fit.radial_velocity)
+    u = fit.direction
+    assert fit.velocity @ u == pytest.approx(v @ u, abs=0.1)
+    assert fit.velocity @ np.array([-u[1], u[0]]) == pytest.approx(0.0, abs=1e-9)
+    small, large = np.linalg.eigvalsh(fit.covariance)
+    assert large == pytest.approx(RadarObjectConfig().unobserved_std ** 2, rel=1e-3) and small < 0.01
+
+
+def test_clusters_split_far_objects_and_keep_ghosts_below_the_road():
+    rng = np.random.default_rng(4)
+    a, b = car_returns(rng, np.array([15.0, 4.0]), 24), car_returns(rng, np.array([30.0, -8.0]), 20)
+    ghost = a[:2] * np.array([1.0, 1.0, -1.0])                     # multipath, mirrored below the road
+    labels = cluster_points(np.concatenate([a, b, ghost]), radius=2.5, z_scale=0.25)
+    assert len(set(labels[:24])) == 1 and len(set(labels[24:44])) == 1 and labels[0] != labels[24]
+    assert set(labels[44:]) == {labels[0]}
+    tall = np.array([[10.0, 0.0, 0.0], [10.0, 0.0, 3.0]])
+    assert cluster_points(tall, 2.5, 0.25)[0] == cluster_points(tall, 2.5, 0.25)[1]
+    assert cluster_points(tall, 2.5, 1.0)[0] != cluster_points(tall, 2.5, 1.0)[1]
+
+
+def test_detect_objects_in_a_scan_with_a_mounted_radar():
+    """Two cars and static points in the radar frame of a radar rotated 30 deg and moved in the world:
+    velocities come back in world axes and the point indices partition the dynamic rows."""
+    rng = np.random.default_rng(5)
+    yaw = math.radians(30.0)
+    radar_to_world = np.eye(4)
+    radar_to_world[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+    radar_to_world[:3, 3] = [100.0, 50.0, 0.5]
+    cars = [(np.array([14.0, 3.0]), np.array([6.0, -2.0]), 15), (np.array([25.0, -10.0]), np.array([0.0, 8.0]), 10)]
+    xyz, comp, dynamic, owner = [], [], [], []
+    for k, (centre, v_world, n) in enumerate(cars):
+        p = car_returns(rng, centre, n)
+        d = p / np.linalg.norm(p, axis=1, keepdims=True)
+        xyz.append(p)
+        comp.append((d @ radar_to_world[:3, :3].T)[:, :2] @ v_world)
+        dynamic.append(np.ones(n, bool))
+        owner.append(np.full(n, k))
+    xyz.append(rng.uniform([5, -20, 0], [40, 20, 2], (20, 3)))
+    comp.append(np.zeros(20))
+    dynamic.append(np.zeros(20, bool))
+    owner.append(np.full(20, -1))
+    xyz, comp, dynamic, owner = (np.concatenate(x) for x in (xyz, comp, dynamic, owner))
+    found = detect_objects(xyz, comp, dynamic, radar_to_world, RadarObjectConfig(), seed=0)
+    assert len(found) == 2
+    for det, (_, v_world, n) in zip(found, cars, strict=True):
+        assert len(det.points) == n and len(set(owner[det.points])) == 1 and len(det.outliers) == 0
+        np.testing.assert_allclose(det.fit.velocity, v_world, atol=1e-8)
+    np.testing.assert_allclose(found[0].centroid, xyz[owner == 0].mean(0) @ radar_to_world[:3, :3].T
+                               + radar_to_world[:3, 3], atol=1e-9)
+
+
+def constant_velocity_measurements(frames, v, start, noise, rng, missing=()):
+    z, R = [], []
+    for t in range(frames):
+        if t in missing:
+            z.append(np.zeros((0, 4)))
+            R.append(np.zeros((0, 4, 4)))
+            continue
+        truth = np.concatenate([start + v * 0.1 * t, v])
+        z.append((truth + rng.normal(0.0, noise)).reshape(1, 4))
+        R.append(np.diag(np.square(noise)).reshape(1, 4, 4))
+    return z, R
+
+
+def test_kalman_filter_tracks_through_a_missed_frame():
+    rng = np.random.default_rng(6)
+    v = np.array([7.0, -3.0])
+    noise = np.array([1.0, 1.0, 0.5, 0.5])
+    z, R = constant_velocity_measurements(12, v, np.array([20.0, 5.0]), noise, rng, missing=(6,))
+    out = track_detections(np.arange(12) * 0.1, z, R, RadarObjectConfig())
+    assert [len(f.ids) for f in out] == [1] * 6 + [0] + [1] * 5
+    assert {int(f.ids[0]) for f in out if len(f.ids)} == {0}
+    # Filtering beats one measurement: the velocity std shrinks below the measurement's 0.5 m/s.
+    final = out[-1]
+    assert np.sqrt(final.covariances[0, 2, 2]) < 0.35
+    assert np.linalg.norm(final.states[0, 2:] - v) < 3 * np.sqrt(np.trace(final.covariances[0, 2:, 2:]))
+
+
+def test_tracks_end_after_too_many_missed_frames_and_far_detections_start_new_ones():
+    rng = np.random.default_rng(7)
+    noise = np.array([0.3, 0.3, 0.2, 0.2])
+    config = RadarObjectConfig(max_missed=2)
+    z, R = constant_velocity_measurements(10, np.array([5.0, 0.0]), np.array([10.0, 0.0]), noise, rng,
+                                          missing=(3, 4, 5))
+    ids = [int(f.ids[0]) for f in track_detections(np.arange(10) * 0.1, z, R, config) if len(f.ids)]
+    assert ids == [0, 0, 0, 1, 1, 1, 1]
+    z2 = [np.array([[0.0, 0.0, 1.0, 0.0], [50.0, 0.0, 1.0, 0.0]])] * 2
+    R2 = [np.tile(np.diag(np.square(noise)), (2, 1, 1))] * 2
+    out = track_detections(np.array([0.0, 0.1]), z2, R2, config)
+    assert out[1].ids.tolist() == [0, 1]
+
+
+def test_objects_document_round_trips(tmp_path):
+    rng = np.random.default_rng(8)
+    frames, names = [], []
+    for t in range(3):
+        p = car_returns(rng, np.array([15.0 + 0.5 * t, 2.0]), 12)
+        d = p / np.linalg.norm(p, axis=1, keepdims=True)
+        frames.append(detect_objects(p, d[:, :2] @ [5.0, 1.0], np.ones(12, bool), np.eye(4)))
+        names.append(f"{t:06d}")
+    document = track_objects(names, np.arange(3) * 0.1, frames)
+    (tmp_path / "radar").mkdir()
+    (tmp_path / "radar" / OBJECTS_FILE).write_text(json.dumps(document, allow_nan=False))
+    loaded = load_radar_objects(tmp_path)
+    assert [len(f) for f in loaded] == [1, 1, 1] and {f[0].track for f in loaded} == {0}
+    obj = loaded[2][0]
+    assert obj.velocity.shape == (3,) and obj.velocity[2] == 0.0 and obj.velocity_covariance.shape == (2, 2)
+    np.testing.assert_allclose(obj.frame_velocity[:2], [5.0, 1.0], atol=1e-8)
+    assert obj.points.dtype == np.int64 and obj.num_returns == 12 and obj.observable
+    (tmp_path / "radar" / OBJECTS_FILE).write_text(json.dumps({"format": "other"}))
+    with pytest.raises(ValueError, match="not a radar4dgs-radar-objects file"):
+        load_radar_objects(tmp_path)
+    with pytest.raises(FileNotFoundError, match="objects.json: missing file"):
+        load_radar_objects(tmp_path / "nowhere")
+
+
+def test_prepare_writes_objects_for_a_synthetic_scene(tmp_path):
+    from radar4dgs.config import preset
+    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.io.scene import read_scene
+    from radar4dgs.radar.process import prepare_radar
+
+    root = synthesize(preset(SynthConfig, "tiny", seed=1, num_frames=6), tmp_path / "scene", progress=False)
+    scene = read_scene(root)
+    prepare_radar(scene, tmp_path / "prepared" / "radar", preset(RadarConfig, "tiny"))
+    loaded = load_radar_objects(tmp_path / "prepared")
+    assert len(loaded) == len(scene) and sum(map(len, loaded)) > 0
+    for i, objects in enumerate(loaded):
+        n = len(scene.load_radar(i))
+        for obj in objects:
+            assert obj.num_returns == len(obj.points) >= RadarObjectConfig().min_returns
+            assert obj.points.max(initial=-1) < n and not set(obj.points) & set(obj.outliers)
