@@ -29,3 +29,9 @@ def test_command_writes_sheet_and_json(scene, tmp_path, capsys):
     assert "frames     6 over 0.50 s" in out and "median 8" in out
     assert (tmp_path / "s.png").stat().st_size > 0
     assert json.loads((tmp_path / "s.json").read_text())["frames"] == FRAMES
+
+
+def test_a_folder_that_is_not_a_scene_is_one_line(tmp_path, capsys):
+    assert main(["inspect", str(tmp_path / "nothing")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"radar4dgs inspect: {tmp_path / 'nothing'}: not a scene folder (no such directory)"]

@@ -8,7 +8,7 @@ import pytest
 # pytest puts this folder on sys.path (rootdir-relative "prepend" imports), as for the other helpers.
 from _scene_helpers import FRAMES, HEIGHT, WIDTH, write_valid_scene
 
-from radar4dgs.io.preview import contact_sheet, doppler_colors, radar_points_in_camera, summarize_scene
+from radar4dgs.io.preview import contact_sheet, doppler_colors, format_summary, radar_points_in_camera, summarize_scene
 from radar4dgs.io.scene import read_scene
 
 
@@ -50,3 +50,18 @@ def test_doppler_colours_are_symmetric():
 def test_contact_sheet_shape(scene):
     sheet = contact_sheet(scene, num_frames=3, tile_width=64)
     assert sheet.dtype == np.uint8 and sheet.shape == (2 * 48 + 28, 128, 3)
+
+
+def test_motion_statistics_need_ground_truth(scene):
+    assert summarize_scene(scene)["dynamic_pixel_motion_px"] is None
+    assert "motion     n/a (needs gt/dynamic_mask, gt/depth and gt/flow)" in format_summary(summarize_scene(scene))
+
+
+def test_motion_statistics_of_a_synthetic_scene(motion_scene):
+    from radar4dgs.io.image_motion import scene_dynamic_pixel_motion
+
+    motion = summarize_scene(motion_scene)["dynamic_pixel_motion_px"]
+    pooled = scene_dynamic_pixel_motion(motion_scene)
+    assert motion["pixels"] == len(pooled) > 0
+    assert motion["p50"] <= motion["p90"] <= motion["p99"] <= motion["max"]
+    assert motion["p90"] == round(float(np.percentile(pooled, 90)), 2)

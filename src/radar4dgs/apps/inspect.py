@@ -21,9 +21,13 @@ class InspectCommand:
     def run(self) -> int:
         from radar4dgs.io.atomic import atomic_write_json
         from radar4dgs.io.preview import contact_sheet, format_summary, save_png, summarize_scene
-        from radar4dgs.io.scene import read_scene
+        from radar4dgs.io.scene import SceneError, read_scene
 
-        scene = read_scene(self.scene)
+        try:
+            scene = read_scene(self.scene)
+        except SceneError as exc:
+            print(f"radar4dgs inspect: {exc}", file=sys.stderr)
+            return 1
         summary = summarize_scene(scene)
         print(format_summary(summary))
         sheet_path = self.sheet or scene.root / "inspect.png"

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from radar4dgs.io.atomic import atomic_write_bytes
+from radar4dgs.io.image_motion import scene_dynamic_pixel_motion
 from radar4dgs.io.scene import Scene, SceneWarning
 
 
@@ -56,9 +57,28 @@ def summarize_scene(scene: Scene) -> dict[str, Any]:
         "split": {"test_every": scene.test_every, "train": len(scene.train_indices), "test": len(scene.test_indices),
                   "test_frames": [scene.frames[i].name for i in scene.test_indices]},
         "optional_folders": scene.optional_folders(),
+        "dynamic_pixel_motion_px": dynamic_motion_statistics(scene),
         "warnings": [str(w.message) for w in caught],
     }
     return summary
+
+
+MOTION_FOLDERS = ("gt/dynamic_mask", "gt/depth", "gt/flow")
+
+
+def dynamic_motion_statistics(scene: Scene) -> dict[str, Any] | None:
+    """p50 / p90 / p99 / max of how far the dynamic pixels move per frame (px), pooled over the
+    scene, from its ground truth (:func:`~radar4dgs.io.image_motion.dynamic_pixel_motion`); None
+    when the scene has no ``gt/dynamic_mask``, ``gt/depth`` and ``gt/flow``. Every motion figure
+    of the project is reported beside these, since flow error grows with the motion itself."""
+    if not all(folder in scene.optional_folders() for folder in MOTION_FOLDERS):
+        return None
+    motion = scene_dynamic_pixel_motion(scene)
+    if not len(motion):
+        return {"pixels": 0, "p50": None, "p90": None, "p99": None, "max": None}
+    p50, p90, p99 = np.percentile(motion, [50, 90, 99])
+    return {"pixels": int(len(motion)), "p50": round(float(p50), 2), "p90": round(float(p90), 2),
+            "p99": round(float(p99), 2), "max": round(float(motion.max()), 2)}
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -79,9 +99,19 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"split      {summary['split']['train']} train / {summary['split']['test']} test "
         f"(every {summary['split']['test_every']}th frame)",
         f"optional   {', '.join(summary['optional_folders']) or 'none'}",
+        "motion     " + _format_motion(summary.get("dynamic_pixel_motion_px")),
     ]
     lines += [f"warning    {w}" for w in summary["warnings"]]
     return "\n".join(lines)
+
+
+def _format_motion(motion: dict[str, Any] | None) -> str:
+    if motion is None:
+        return "n/a (needs gt/dynamic_mask, gt/depth and gt/flow)"
+    if not motion["pixels"]:
+        return "no dynamic pixels"
+    return (f"dynamic pixels move p50 {motion['p50']:.1f} / p90 {motion['p90']:.1f} / p99 {motion['p99']:.1f} px "
+            f"per frame (max {motion['max']:.1f}; {motion['pixels']} pixels)")
 
 
 def doppler_colors(v_r: np.ndarray, limit: float) -> np.ndarray:
