@@ -20,7 +20,7 @@ from radar4dgs.datasets.synth.raycast import (
     rot_y,
     rot_z,
 )
-from radar4dgs.datasets.synth.world import build_world
+from radar4dgs.datasets.synth.street import build_world
 
 finite = st.floats(-5.0, 5.0, allow_nan=False)
 

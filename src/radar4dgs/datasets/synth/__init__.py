@@ -2,7 +2,8 @@
 
 ``synthesize(preset(SynthConfig, "small", seed=1), Path("scene"))`` writes a scene folder
 (SCENE_FORMAT.md) with ``gt/`` and ``priors/``; ``radar4dgs synth OUT --preset small --seed 1``
-does the same from the command line.
+does the same from the command line; ``--traffic realistic`` (``TrafficConfig.PROFILES``) gives
+traffic that moves as fast across the image as real traffic at 10 Hz.
 """
 
 from radar4dgs.datasets.synth.config import (
@@ -11,8 +12,10 @@ from radar4dgs.datasets.synth.config import (
                                          RadarReflectivity,
                                          RadarSimConfig,
                                          SynthConfig,
+                                         TrafficConfig,
+                                         traffic_profile,
 )
 from radar4dgs.datasets.synth.generate import synthesize
 
 __all__ = ["LidarSimConfig", "MonoPriorConfig", "RadarReflectivity", "RadarSimConfig", "SynthConfig",
-           "synthesize"]
+           "TrafficConfig", "synthesize", "traffic_profile"]

@@ -92,12 +92,13 @@ def render(world: W.World, config: SynthConfig, K: np.ndarray, cam_to_ego_m: np.
     obj_map = np.full((height, width), -1, dtype=np.int64)
     obj_map[surf] = obj
     dynamic = np.zeros((height, width), bool)
-    dynamic[surf] = world.car_moving(obj)
+    dynamic[surf] = world.moving(obj, time)
     flow_road = np.zeros((height, width, 3))
-    for car in world.cars:
-        sel = obj_map == car.index
-        if car.moving and sel.any():
-            motion = car.pose(time + dt) @ np.linalg.inv(car.pose(time))
+    for mover in world.movers:
+        sel = obj_map == mover.index
+        if mover.moving_at(time) and sel.any():
+            # Exact for any trajectory: the rigid motion from this pose to the next one.
+            motion = mover.pose(time + dt) @ np.linalg.inv(mover.pose(time))
             flow_road[sel] = apply(motion, points[sel]) - points[sel]
     flow = flow_road @ world.road_to_world[:3, :3].T
     return CameraFrame(image, hits.t.astype(np.float32), sky, dynamic, flow.astype(np.float32), points, obj_map)

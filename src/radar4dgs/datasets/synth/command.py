@@ -5,11 +5,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import tyro
 
 from radar4dgs.config import PresetName
-from radar4dgs.datasets.synth.config import SynthConfig
+from radar4dgs.datasets.synth.config import SynthConfig, traffic_profile
 
 
 @dataclass
@@ -19,6 +20,10 @@ class SynthCommand:
     out: tyro.conf.Positional[Path]  # scene folder to write
     preset: PresetName = "small"  # size preset: tiny (tests), small (CPU default), paper (1920x1080)
     seed: int = 0  # layout, speeds, colours and textures
+    # moving objects: calm (a few cars, a few pixels per frame) or realistic (lead car, cut-in, oncoming and
+    # crossing cars passing close, pedestrians, cyclists: tens to hundreds of pixels per frame); explicit
+    # --scene.traffic.* options win over the profile
+    traffic: Literal["calm", "realistic"] = "calm"
     overwrite: bool = False  # replace OUT if it exists
     scene: SynthConfig = field(default_factory=SynthConfig)  # every generator option; defaults from --preset
 
@@ -27,9 +32,9 @@ class SynthCommand:
     def run(self) -> int:
         from radar4dgs.datasets.synth.generate import synthesize
 
-        config = replace(self.scene, seed=self.seed)
+        config = replace(self.scene, seed=self.seed, traffic=traffic_profile(self.traffic, self.scene.traffic))
         start = time.perf_counter()
         out = synthesize(config, self.out, overwrite=self.overwrite, preset=self.preset)
         print(f"wrote {out}: {config.num_frames} frames {config.width}x{config.height}, preset {self.preset}, "
-              f"seed {config.seed}, {time.perf_counter() - start:.1f} s")
+              f"seed {config.seed}, traffic {self.traffic}, {time.perf_counter() - start:.1f} s")
         return 0

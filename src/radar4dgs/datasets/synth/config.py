@@ -5,8 +5,8 @@ Every noise level is a field, so a test can set it to 0 and get exact data.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import ClassVar
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, ClassVar
 
 
 @dataclass
@@ -20,6 +20,8 @@ class RadarReflectivity:
     foliage: float = 0.12  # tree crowns: weak, diffuse
     sidewalk: float = 0.25  # sidewalk slabs and curb faces
     ground: float = 0.05  # asphalt and grass: seen at grazing angles, mostly invisible
+    person: float = 0.3  # pedestrians and cyclists' riders: weak, soft returns
+    bicycle: float = 0.6  # bicycle frames and wheels: thin metal
 
 
 @dataclass
@@ -75,6 +77,67 @@ class MonoPriorConfig:
 
 
 @dataclass
+class TrafficConfig:
+    """The moving objects. The defaults are the calm traffic of SynthConfig (``moving_cars``,
+    ``crossing_probability``: a few cars moving a few pixels per frame), unchanged for every seed.
+
+    The named profiles (``PROFILES``; ``radar4dgs synth --traffic realistic``) turn on traffic
+    that moves tens to hundreds of pixels per frame, as real traffic at 10 Hz does: a lead car,
+    a cut-in, oncoming and crossing cars passing close, pedestrians and cyclists. Those movers
+    are drawn from their own random stream, in road-frame seconds and metres (any fps).
+    """
+
+    # keep the calm generator's parked and moving cars; False: parked cars (SynthConfig.parked_cars)
+    # and the movers below, placed without overlaps
+    calm_cars: bool = True
+    # put the crossing road just ahead of the ego's last position (instead of 35-70 m beyond it)
+    near_intersection: bool = False
+    # gap from the ego's front bumper at the last frame to the crossing road's near edge (m)
+    intersection_gap: tuple[float, float] = (0.5, 5.0)
+    lead_probability: float = 0.0  # chance of a slower lead car in the ego lane that the ego closes in on
+    lead_closing_speed: tuple[float, float] = (2.0, 6.0)  # ego speed minus lead speed (m/s)
+    lead_gap_end: tuple[float, float] = (8.0, 40.0)  # lead car's gap ahead of the ego at the last frame (m)
+    min_gap: float = 5.0  # nothing ahead of the ego in its lane comes closer than this (bumper to bumper, m)
+    cut_in_probability: float = 0.0  # chance of a car changing from the adjacent lane into the ego lane
+    cut_in_duration: tuple[float, float] = (2.0, 4.0)  # lane change duration (s), at most 0.8 of the sequence
+    # fraction of the sequence at which the cut-in car crosses the lane line
+    cut_in_time: tuple[float, float] = (0.3, 0.6)
+    cut_in_gap: tuple[float, float] = (6.0, 14.0)  # its gap ahead of the ego when it crosses the lane line (m)
+    cut_in_relative_speed: tuple[float, float] = (-2.0, 3.0)  # its speed minus the ego speed (m/s)
+    oncoming_cars: tuple[int, int] = (0, 0)  # cars passing the ego in the oncoming lane next to it, inclusive
+    oncoming_speed: tuple[float, float] = (8.0, 18.0)  # their speed (m/s)
+    oncoming_pass: tuple[float, float] = (0.3, 0.85)  # fraction of the sequence at which one passes the camera
+    crossing_cars: tuple[int, int] = (0, 0)  # cars crossing at the intersection, inclusive range
+    crossing_speed: tuple[float, float] = (6.0, 14.0)  # their speed (m/s)
+    # fraction of the sequence at which one crosses the ego lane's line (late: the ego is close)
+    crossing_time: tuple[float, float] = (0.6, 1.2)
+    pedestrians: tuple[int, int] = (0, 0)  # pedestrians crossing the road or walking along it, inclusive
+    pedestrian_speed: tuple[float, float] = (1.0, 2.5)  # walking to running (m/s)
+    cyclists: tuple[int, int] = (0, 0)  # cyclists along the road or across the intersection, inclusive
+    cyclist_speed: tuple[float, float] = (3.0, 7.0)  # (m/s)
+    attempts: int = 80  # random placements tried per mover before it is left out (overlaps, gaps)
+
+    PROFILES: ClassVar[dict[str, dict[str, Any]]] = {
+        "calm": {},
+        "realistic": {"calm_cars": False, "near_intersection": True, "lead_probability": 1.0,
+                      "cut_in_probability": 1.0, "oncoming_cars": (1, 2), "crossing_cars": (1, 2),
+                      "pedestrians": (1, 2), "cyclists": (0, 1)},
+    }
+
+
+def traffic_profile(name: str, base: TrafficConfig | None = None) -> TrafficConfig:
+    """``base`` (default: calm) with profile ``name`` applied to the fields that hold their calm
+    default, so explicit options (``--scene.traffic.oncoming-cars 3 3``) win over the profile."""
+    if name not in TrafficConfig.PROFILES:
+        raise ValueError(f"unknown traffic profile {name!r}; choose one of {list(TrafficConfig.PROFILES)}")
+    base = base or TrafficConfig()
+    calm = TrafficConfig()
+    values = {f.name: v for f in fields(TrafficConfig) if (v := TrafficConfig.PROFILES[name].get(f.name)) is not None
+              and getattr(base, f.name) == getattr(calm, f.name)}
+    return replace(base, **values)
+
+
+@dataclass
 class SynthConfig:
     """The procedural driving-scene generator (``radar4dgs synth``)."""
 
@@ -97,6 +160,7 @@ class SynthConfig:
     radar: RadarSimConfig = field(default_factory=RadarSimConfig)  # 4D radar simulation
     lidar: LidarSimConfig = field(default_factory=LidarSimConfig)  # lidar simulation
     prior: MonoPriorConfig = field(default_factory=MonoPriorConfig)  # priors/ (mono depth, sky mask)
+    traffic: TrafficConfig = field(default_factory=TrafficConfig)  # moving objects: calm (default) or a profile
 
     PRESETS: ClassVar[dict[str, dict]] = {
         "tiny": {"width": 160, "height": 90, "num_frames": 20,

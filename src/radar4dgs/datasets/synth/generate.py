@@ -13,12 +13,14 @@ from radar4dgs.datasets.synth import lidar as L
 from radar4dgs.datasets.synth import priors as P
 from radar4dgs.datasets.synth import radar as R
 from radar4dgs.datasets.synth import world as W
-from radar4dgs.datasets.synth.config import SynthConfig
+from radar4dgs.datasets.synth.config import RadarReflectivity, SynthConfig, TrafficConfig
+from radar4dgs.datasets.synth.street import build_world
 from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
 
 GENERATOR = "radar4dgs.synth"
 # Streams of np.random.default_rng([seed, stream, frame]): each output draws from its own stream,
 # so changing one option (say radar noise) leaves the layout and every other output unchanged.
+# The layout uses stream 0 and the traffic profiles street.TRAFFIC_STREAM.
 _CAMERA, _RADAR, _LIDAR, _PRIOR, _MOUNT, _SCENE_PRIOR = 1, 2, 3, 4, 5, 6
 
 
@@ -36,12 +38,17 @@ def validate(config: SynthConfig) -> None:
         (config.ego_speed[0] >= 0, "ego_speed must be >= 0"),
         (config.parked_cars[0] >= 0 and config.moving_cars[0] >= 0, "car counts must be >= 0"),
         (config.lidar.beams >= 1, "lidar.beams must be >= 1"),
+        (config.traffic.attempts >= 1 and config.traffic.min_gap >= 0, "traffic.attempts must be >= 1, "
+         "traffic.min_gap >= 0"),
         (config.radar.max_points >= 0 and config.radar.ghost_count >= 0,
          "radar.max_points and ghost_count must be >= 0"),
     ]
     for name in ("ego_speed", "weave_amplitude", "weave_wavelength", "parked_cars", "moving_cars"):
         lo, hi = getattr(config, name)
         checks.append((lo <= hi, f"{name} must be (low, high) with low <= high, got {(lo, hi)}"))
+    for name in TRAFFIC_RANGES:
+        lo, hi = getattr(config.traffic, name)
+        checks.append((0 <= lo <= hi, f"traffic.{name} must be (low, high) with 0 <= low <= high, got {(lo, hi)}"))
     stds = {"radar.range_std": config.radar.range_std, "radar.azimuth_std_deg": config.radar.azimuth_std_deg,
             "radar.elevation_std_deg": config.radar.elevation_std_deg, "radar.v_r_std": config.radar.v_r_std,
             "radar.rcs_std_db": config.radar.rcs_std_db, "radar.clutter_fraction": config.radar.clutter_fraction,
@@ -53,8 +60,44 @@ def validate(config: SynthConfig) -> None:
             raise ValueError(f"SynthConfig: {message}")
 
 
-def _object_metadata(world: W.World, times: np.ndarray) -> list[dict]:
-    """Per-object ground truth in the world frame: the ego and every car with its boxes and poses."""
+TRAFFIC_RANGES = ("intersection_gap", "lead_closing_speed", "lead_gap_end", "cut_in_duration", "cut_in_time",
+                  "cut_in_gap", "oncoming_speed", "oncoming_pass", "crossing_speed", "crossing_time", "pedestrians",
+                  "pedestrian_speed", "cyclists", "cyclist_speed", "oncoming_cars", "crossing_cars")
+
+
+def config_record(config: SynthConfig) -> dict:
+    """``to_dict(config)`` for scene.json. With calm traffic, the options added for the traffic
+    profiles are left out while they hold their defaults, so calm scenes keep the exact scene.json
+    they had before those options existed."""
+    record = to_dict(config)
+    if config.traffic == TrafficConfig():
+        del record["traffic"]
+        defaults, reflectivity = RadarReflectivity(), config.radar.reflectivity
+        for name in ("person", "bicycle"):
+            if getattr(reflectivity, name) == getattr(defaults, name):
+                del record["radar"]["reflectivity"][name]
+    return record
+
+
+def _mover_metadata(mover: W.Mover, to_world: np.ndarray, times: np.ndarray) -> dict:
+    """Ground truth of one mover (traffic profiles): its class, and per frame its world pose,
+    velocity (m/s) and yaw rate (rad/s); ``velocity`` and ``speed`` too when they are constant."""
+    moving = any(mover.moving_at(float(t)) for t in times)
+    entry = {"id": mover.index, "kind": "moving" if moving else "parked", "class": mover.category, "role": mover.role,
+             "dims": [mover.length, mover.width, mover.height], "color": np.round(mover.color, 4).tolist()}
+    if mover.trajectory.constant:
+        entry.update(speed=mover.speed(0.0), velocity=(to_world[:3, :3] @ mover.velocity(0.0)).tolist())
+    entry["velocities"] = [(to_world[:3, :3] @ mover.velocity(float(t))).tolist() for t in times]
+    entry["yaw_rates"] = [mover.trajectory.yaw_rate(float(t)) for t in times]
+    entry["boxes"] = [{"center": c.tolist(), "half_size": h.tolist(), "part": W.MATERIAL_NAMES[m]}
+                      for c, h, m in zip(mover.local_center, mover.local_half, mover.local_material, strict=True)]
+    entry["poses"] = [(to_world @ mover.pose(float(t))).tolist() for t in times]
+    return entry
+
+
+def _object_metadata(world: W.World, times: np.ndarray, calm: bool = True) -> list[dict]:
+    """Per-object ground truth in the world frame: the ego and every mover with its boxes and poses
+    (``calm``: exactly the entries calm scenes have always had; else :func:`_mover_metadata`)."""
     to_world = world.road_to_world
     ego = world.ego
     objects: list[dict] = [{
@@ -62,11 +105,13 @@ def _object_metadata(world: W.World, times: np.ndarray) -> list[dict]:
         "trajectory": {"model": "x = speed t, y = lane_y + amplitude sin(wavenumber x + phase) (road frame)",
                        "lane_y": ego.lane_y, "amplitude": ego.amplitude, "wavenumber": ego.wavenumber,
                        "phase": ego.phase}}]
-    for car in world.cars:
+    if not calm:
+        return objects + [_mover_metadata(mover, to_world, times) for mover in world.movers]
+    for car in world.movers:
         objects.append({
-            "id": car.index, "kind": "moving" if car.moving else "parked", "role": car.role,
+            "id": car.index, "kind": "moving" if car.moving_at(0.0) else "parked", "role": car.role,
             "dims": [car.length, car.width, car.height], "color": np.round(car.color, 4).tolist(),
-            "speed": car.speed, "velocity": (to_world[:3, :3] @ car.velocity).tolist(),
+            "speed": car.speed(0.0), "velocity": (to_world[:3, :3] @ car.velocity(0.0)).tolist(),
             "boxes": [{"center": c.tolist(), "half_size": h.tolist(), "part": W.MATERIAL_NAMES[m]}
                       for c, h, m in zip(car.local_center, car.local_half, car.local_material, strict=True)],
             "poses": [(to_world @ car.pose(float(t))).tolist() for t in times]})
@@ -82,7 +127,7 @@ def synthesize(config: SynthConfig, out: Path, overwrite: bool = False, progress
     """
     validate(config)
     out = Path(out)
-    world = W.build_world(config)
+    world = build_world(config)
     K = C.intrinsics(config)
     cam_to_ego = C.cam_to_ego(config)
     rays = C.pixel_rays(K, config.width, config.height)
@@ -124,8 +169,8 @@ def synthesize(config: SynthConfig, out: Path, overwrite: bool = False, progress
             "intersection_x_road": world.x_int,
             "radar_misalignment_deg": {"yaw": yaw_mis, "pitch": pitch_mis},
             "mono_depth_prior": {"a": a, "b": b, "model": "a / z * (1 + distortion + noise) + b, then blurred"},
-            "objects": _object_metadata(world, times),
-            "config": to_dict(config),
+            "objects": _object_metadata(world, times, calm=config.traffic == TrafficConfig()),
+            "config": config_record(config),
         }
         source = {"dataset": "synthetic", "seed": config.seed, "preset": preset, "generator": GENERATOR}
         writer.finish(f"synthetic-s{config.seed}", camera, radar_spec, source=source,

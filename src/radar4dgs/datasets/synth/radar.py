@@ -21,7 +21,7 @@ FIELDS = ("x", "y", "z", "v_r", "rcs")
 STATIC, MOVING, CLUTTER = 0, 1, -1
 # Base radar cross-section per material (dBsm) before the incidence term and noise.
 RCS_DB = {W.GROUND: -12.0, W.SIDEWALK: -8.0, W.BUILDING: 8.0, W.POLE: 3.0, W.TRUNK: -2.0,
-          W.FOLIAGE: -6.0, W.CAR_BODY: 10.0, W.CAR_CABIN: 6.0, W.WHEEL: 4.0}
+          W.FOLIAGE: -6.0, W.CAR_BODY: 10.0, W.CAR_CABIN: 6.0, W.WHEEL: 4.0, W.PERSON: -8.0, W.BICYCLE: -5.0}
 
 
 def radar_to_ego(config: RadarSimConfig, rng: np.random.Generator) -> np.ndarray:
@@ -73,6 +73,7 @@ def _reflectivity(config: RadarSimConfig, material: np.ndarray) -> np.ndarray:
     table[[W.GROUND, W.SIDEWALK, W.BUILDING, W.POLE, W.TRUNK, W.FOLIAGE]] = (
         r.ground, r.sidewalk, r.building, r.pole, r.trunk, r.foliage)
     table[list(W.VEHICLE_MATERIALS)] = r.vehicle
+    table[[W.PERSON, W.BICYCLE]] = (r.person, r.bicycle)
     return table[material]
 
 
@@ -116,11 +117,11 @@ def simulate(world: W.World, config: RadarSimConfig, mount: np.ndarray, time: fl
     t, d, material, obj, cos_inc = t[keep], d[keep], material[keep], obj[keep], cos_inc[keep]
     p_road = origin + d * t[:, None]
     v_radar = radar_velocity(world, time, mount)
-    v_point = world.car_velocity(obj)
+    v_point = world.point_velocity(obj, p_road, time)  # v + omega x r of the body at the scan time
     v_r = np.einsum("ij,ij->i", d, v_point - v_radar)
     rcs_table = np.array([RCS_DB[m] for m in range(len(W.MATERIAL_NAMES))])
     rcs = rcs_table[material] + 10 * np.log10(np.maximum(cos_inc, 0.05))
-    labels = np.where(world.car_moving(obj), MOVING, STATIC)
+    labels = np.where(world.moving(obj, time), MOVING, STATIC)
 
     # Multipath ghosts: a car point reflected off the road appears at its mirror image below it.
     vehicle = np.flatnonzero(np.isin(material, W.VEHICLE_MATERIALS))

@@ -55,7 +55,7 @@ class Primitives:
         box_rot: (M, 3, 3) box-to-road rotation; its columns are the box axes.
         sphere_center: (S, 3); sphere_radius: (S,).
         material, obj: (1 + M + S,) int, indexed like ``Hits.prim`` (entry 0 is the ground):
-            material id and owning object (-1 = static world, k = car k).
+            material id and owning object (-1 = static world, k = mover k).
         color: (1 + M + S, 3) base colour in 0..1.
     """
 

@@ -86,7 +86,7 @@ def _car(world: W.World, p: np.ndarray, n: np.ndarray, fp: np.ndarray, color: np
     local = np.zeros_like(p)
     local_n = np.zeros_like(n)
     lengths = np.zeros(len(p))
-    for car in world.cars:
+    for car in world.movers:
         sel = obj == car.index
         if sel.any():
             pose = car.pose(time)
@@ -140,7 +140,7 @@ def albedo(world: W.World, material: np.ndarray, obj: np.ndarray, prim: np.ndarr
             out[sel] = _sidewalk(world, ps, ns, fs)
         elif mat == W.BUILDING:
             out[sel] = _building(world, ps, ns, fs, color[sel], prim[sel])
-        elif mat in W.VEHICLE_MATERIALS:
+        elif mat in W.VEHICLE_MATERIALS or mat in W.FIGURE_MATERIALS:
             continue
         elif mat == W.POLE:
             out[sel] = color[sel] * (0.8 + 0.3 * value_noise(world.noise, ps[:, 2] * 2, ps[:, 0]))[:, None]
@@ -156,7 +156,25 @@ def albedo(world: W.World, material: np.ndarray, obj: np.ndarray, prim: np.ndarr
     if vehicle.any():
         out[vehicle] = _car(world, p[vehicle], n[vehicle], fp[vehicle], color[vehicle], material[vehicle],
                             obj[vehicle], time)
+    figure = np.isin(material, W.FIGURE_MATERIALS)
+    if figure.any():
+        out[figure] = _figure(world, p[figure], fp[figure], color[figure], obj[figure], time)
     return np.clip(out, 0.0, 1.0)
+
+
+def _figure(world: W.World, p: np.ndarray, fp: np.ndarray, color: np.ndarray, obj: np.ndarray,
+            time: float) -> np.ndarray:
+    """(N, 3) pedestrians and cyclists: the part's colour with a fine fabric-like noise fixed to the
+    body (in its own frame, so the texture moves with it)."""
+    local = np.zeros_like(p)
+    for mover in world.movers:
+        sel = obj == mover.index
+        if sel.any():
+            pose = mover.pose(time)
+            local[sel] = (p[sel] - pose[:3, 3]) @ pose[:3, :3]
+    lx, ly, lz = local.T
+    grain = 0.85 + 0.3 * fbm(world.noise, lx * 4 + ly * 3 + 17.0 * obj, lz * 4, 0.3, 3, fp)
+    return color * grain[:, None]
 
 
 def lit(world: W.World, albedo_rgb: np.ndarray, n: np.ndarray, material: np.ndarray,
