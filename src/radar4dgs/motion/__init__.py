@@ -2,7 +2,9 @@
 radar Doppler association.
 
 Modules: :mod:`.config` (``FlowConfig``, torch-free), :mod:`.optical_flow` (DIS/RAFT flow,
-forward-backward consistency), :mod:`.rigid` (whole-object translations), :mod:`.sampling`
+forward-backward consistency), :mod:`.rigid` (whole-object translations), :mod:`.objects_flow`
+(radar-guided object motion: :mod:`.object_hints` radar objects in the image and their predicted
+motion, :mod:`.warp_match` the matched affine warp), :mod:`.sampling`
 (bilinear sampling), :mod:`.lift` (lifting to 3D, outlier rejection), :mod:`.flow` (the scene
 level: ``prepare_flow``, the prepared ``flow/`` folder), :mod:`.metrics`
 (``motion_frontend_metrics``) and :mod:`.association` (nearest dynamic radar point). The

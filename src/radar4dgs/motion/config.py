@@ -75,6 +75,54 @@ class FlowConfig:
     rigid_accept: float = 0.9
     # Components smaller than this (px) keep their dense flow (too little to match reliably).
     rigid_min_pixels: int = 10
+    # Radar-guided matching of large motions (DESIGN.md "Realistic motion", motion/objects_flow.py):
+    # a component that a radar object's returns land on also gets the radar prediction (its
+    # pixels' 3D points moved by the object's velocity x dt and projected into frame j: ego motion,
+    # object motion and zoom at once) and an affine warp matched around it (translation search, then
+    # ECC); the candidate with the least photometric error wins (rigid_accept as for the
+    # translation). At 10 Hz a car passing one lane away moves 70-200 px per frame, beyond DIS and
+    # the +-rigid_search translation. Needs <prepared>/radar/objects.json; components without a
+    # radar object keep today's step. False = dense flow and translation only.
+    radar_guided: bool = True
+    # Radius (px) of the translation search around the radar prediction; a velocity error of
+    # 2 m/s moves an object 10 m away by ~45 px per frame at f = 230 px and 10 Hz, half that at
+    # 20 m. Scale it with the image width.
+    radar_search: int = 24
+    # A radar return votes for the component it lands on or the nearest one within this (px):
+    # 1 deg of elevation noise is 4 px at f = 230 px.
+    radar_association_radius: float = 4.0
+    # Votes an object needs on a component to be its radar object.
+    radar_min_returns: int = 2
+    # Iteration cap of the ECC refinement of the matched affine (cv2.findTransformECC).
+    radar_ecc_iterations: int = 100
+    # ECC may change the linear part (scale, shear) of the radar-predicted warp by at most this
+    # (max |log singular value| of the ratio; 0.15 = 16 %); beyond, ECC has wandered off on a nearly
+    # uniform object, and the searched translation stays.
+    radar_max_shape_change: float = 0.15
+    # After the choice, a pixel keeps its dense flow where that agrees with the chosen motion
+    # within this (px). 0 = the chosen motion on the whole component: measured better (synthetic
+    # seeds 1-3 and realistic 101-103, 2D and scene-flow EPE), 1 px cost 0.02 m of scene-flow EPE
+    # on the realistic ones (the dense flow's small errors near the object's edges are kept).
+    radar_dense_agreement: float = 0.0
+    # A candidate motion must keep at least this fraction of the object's pixels inside frame j to
+    # be scored (a car passing the camera leaves the image; too few pixels left cannot verify it).
+    radar_min_inside: float = 0.25
+    # Drop (do not lift) every pixel of a component whose chosen motion explains the images no
+    # better than chance: its mean absolute grey error is above this fraction of the error of the
+    # same pixels paired with the same target values at random (every candidate failed). A ratio,
+    # not grey levels: a right match on a contrasted car scores what a wrong one does on a dull
+    # one. Synthetic seeds 1-3 and 101-103: right motions (< 1.5 px) 0.3 median, 0.76 at p95;
+    # wrong ones (> 5 px) 0.79 median; a search on unrelated texture still finds ~0.88 (it
+    # optimises the error), chance is 1. 0 = off (radar_guided only).
+    max_component_error_ratio: float = 0.8
+    # ... and above this (grey levels): on a nearly uniform object every motion scores near chance.
+    min_component_error: float = 8.0
+    # Drop (do not lift) dynamic pixels whose mean absolute grey error over a pixel_error_window
+    # neighbourhood after the flow exceeds this (grey levels): local match failures that fail alike
+    # forwards and backwards pass the consistency check. 0 = off.
+    max_pixel_error: float = 30.0
+    # See max_pixel_error (px, odd).
+    pixel_error_window: int = 5
     # Where metric depth comes from: "prepared" = <prepared>/depth/<frame>.npy (stage 3);
     # "oracle" = the scene's gt/depth (ablations and tests only).
     depth_source: Literal["prepared", "oracle"] = "prepared"

@@ -14,10 +14,15 @@ images never supervise the field), with keys
     ``pixels``     (M, 2) float32     (u, v) integer pixel coordinates of the kept pixels
     ``index_i``, ``index_j`` int; ``timestamp_i``, ``timestamp_j`` float64 (s)
 
-Each dynamic-mask component whose single 2D translation explains the two images better than the
-dense flow gets that translation in ``flow`` (both directions, before the consistency check; see
-``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & valid depth in both frames.
-``flow/config.json`` holds the resolved :class:`FlowConfig`.
+    ``reliable``   (H, W) bool        not dropped as a photometric failure (objects_flow.reliable_pixels)
+
+Each dynamic-mask component gets the motion that explains the two images best (both directions,
+before the consistency check): with ``FlowConfig.radar_guided`` and ``<prepared>/radar/objects.json``,
+among its dense flow, its single translation, its radar object's predicted motion and a warp matched
+around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
+(``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
+frames. ``flow/config.json`` holds the resolved :class:`FlowConfig`; ``summary.json`` counts the
+components per chosen model (``models``).
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from __future__ import annotations
 import io
 import time
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
 
@@ -34,8 +39,11 @@ from radar4dgs.io.atomic import atomic_directory, atomic_write_bytes, atomic_wri
 from radar4dgs.io.scene import read_mask_png
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
+from radar4dgs.motion.object_hints import ObjectHint, frame_hints
+from radar4dgs.motion.objects_flow import PairGeometry, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
+from radar4dgs.radar.objects import load_radar_objects
 
 
 def frame_pairs(scene, skip_test_frames: bool = True) -> list[tuple[int, int]]:
@@ -107,37 +115,57 @@ def _with_progress(pairs: list[tuple[int, int]], progress: bool | Callable[[Iter
     return iterator
 
 
+class PairFlow(NamedTuple):
+    """One pair's pseudo scene flow (:func:`pair_scene_flow`)."""
+
+    forward: np.ndarray  # (H, W, 2) float32 flow i -> j after the object steps
+    consistent: np.ndarray  # (H, W) bool forward-backward consistent
+    points_i: np.ndarray  # (M, 3) float64 world points of the kept pixels at time i
+    points_j: np.ndarray  # (M, 3) the same points at time j
+    pixels: np.ndarray  # (M, 2) (u, v) of the kept pixels
+    reliable: np.ndarray  # (H, W) bool not dropped as a photometric failure
+    models: dict[str, int]  # components per chosen model (objects_flow.MODELS, "no_radar")
+
+
 def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray, forward: np.ndarray,
                     backward: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, mask_i: np.ndarray,
-                    mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray,
+                    hints_i: list[ObjectHint] | None = None, hints_j: list[ObjectHint] | None = None,
+                    dt: float = 0.0) -> PairFlow:
     """The pseudo scene flow of one pair i -> j from its two dense flows (module doc).
 
     Args:
-        config: options (rigid objects, consistency, depth edges, target mask, outlier filter).
+        config: options (object steps, consistency, failure drops, depth edges, target mask, outliers).
         image_i, image_j: (H, W, 3) RGB uint8. forward, backward: (H, W, 2) dense flow i -> j, j -> i.
         depth_i, depth_j: (H, W) metric z-depth. mask_i, mask_j: (H, W) bool dynamic masks.
         K: (3, 3). world_to_cam_i, world_to_cam_j: (4, 4).
-    Returns:
-        forward (H, W, 2) (whole-object translations applied), consistent (H, W) bool, and the kept
-        lifted pairs: points_i (M, 3), points_j (M, 3) float64 world points, pixels (M, 2) (u, v).
+        hints_i, hints_j: the radar objects of frames i and j (None or empty: no radar guidance).
+        dt: time of j minus time of i (s).
     """
-    if config.rigid_objects:
-        gray_i, gray_j = to_gray(image_i), to_gray(image_j)
+    gray_i, gray_j = to_gray(image_i), to_gray(image_j)
+    failed = np.zeros(mask_i.shape, dtype=bool)
+    models: dict[str, int] = {}
+    if config.radar_guided:
+        forward, failed, models = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
+                                              PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt), config)
+        backward, _, _ = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
+                                     PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config)
+    elif config.rigid_objects:
         rigid = (config.rigid_search, config.rigid_accept, config.rigid_min_pixels)
         forward = rigid_object_flow(gray_i, gray_j, forward, mask_i, *rigid)
         backward = rigid_object_flow(gray_j, gray_i, backward, mask_j, *rigid)
     consistent = consistency_mask(forward, backward, config.consistency_alpha, config.consistency_beta)
+    reliable = reliable_pixels(gray_i, gray_j, forward, mask_i, failed, config)
     points_i, points_j, pixels = lift_flow(
         forward, depth_i, depth_j, K, world_to_cam_i, world_to_cam_j,
-        mask_i & consistent, config.depth_edge_tolerance,
+        mask_i & consistent & reliable, config.depth_edge_tolerance,
         mask_j if config.require_dynamic_target else None)
     if config.outlier_filter:
         keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
                                     config.outlier_mad_factor, config.outlier_min_points,
                                     config.outlier_neighbours)
         points_i, points_j, pixels = points_i[keep], points_j[keep], pixels[keep]
-    return forward, consistent, points_i, points_j, pixels
+    return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models)
 
 
 def prepare_flow(scene, prepared_dir: str | Path, config: FlowConfig | None = None,
@@ -165,7 +193,8 @@ def run_flow_stage(scene, out_dir: Path, config: FlowConfig, progress: Callable[
     """``radar4dgs.apps.prepare`` stage runner: ``out_dir`` is the (temporary) ``<prepared>/flow`` folder,
     so depth and masks are read from its parent, the prepared folder."""
     summary = write_flow(scene, Path(out_dir), config, Path(out_dir).parent, progress=progress)
-    return {"pairs": summary["pairs"], "points": sum(p["points"] for p in summary["per_pair"])}
+    return {"pairs": summary["pairs"], "points": sum(p["points"] for p in summary["per_pair"]),
+            "models": summary["models"]}
 
 
 def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
@@ -189,8 +218,11 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
         cache[first] = _frame_inputs(scene, first, config, prepared_dir, depth_dir, mask_dir)
     estimator = FlowEstimator(config)
     K = scene.camera.K
+    objects, objects_note = _radar_objects(scene, prepared_dir, config)
+    hints: dict[int, list[ObjectHint]] = {}
     iterator = _with_progress(pairs, progress)
     per_pair = []
+    totals: dict[str, int] = {}
     flow_seconds = 0.0
     for i, j in iterator:
         image_i, image_j = scene.load_image(i), scene.load_image(j)
@@ -203,26 +235,51 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
                 cache[k] = _frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
         depth_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
         depth_j, mask_j = cache[j]
-        forward, consistent, points_i, points_j, pixels = pair_scene_flow(
+        if objects is not None:
+            for k in (i, j):
+                hints.setdefault(k, frame_hints(scene, k, objects[k]))
+        result = pair_scene_flow(
             config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
-            scene.world_to_camera(i), scene.world_to_camera(j))
+            scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
+            scene.frames[j].timestamp - scene.frames[i].timestamp)
         name = scene.frames[i].name
         atomic_write_bytes(out / f"{name}.npz", _npz_bytes(
-            flow=forward.astype(np.float32), consistent=consistent,
-            points_i=points_i.astype(np.float32), points_j=points_j.astype(np.float32),
-            pixels=pixels.astype(np.float32), index_i=np.int64(i), index_j=np.int64(j),
+            flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
+            points_i=result.points_i.astype(np.float32), points_j=result.points_j.astype(np.float32),
+            pixels=result.pixels.astype(np.float32), index_i=np.int64(i), index_j=np.int64(j),
             timestamp_i=np.float64(scene.frames[i].timestamp),
             timestamp_j=np.float64(scene.frames[j].timestamp)))
-        per_pair.append({"frame": name, "index_i": i, "index_j": j, "points": int(len(points_i)),
+        for model, count in result.models.items():
+            totals[model] = totals.get(model, 0) + count
+        per_pair.append({"frame": name, "index_i": i, "index_j": j, "points": int(len(result.points_i)),
                          "dynamic_pixels": int(mask_i.sum()),
-                         "consistent_fraction": float(consistent.mean())})
+                         "consistent_fraction": float(result.consistent.mean()),
+                         "dropped_pixels": int((mask_i & result.consistent & ~result.reliable).sum()),
+                         "models": result.models})
     summary = {"pairs": len(pairs), "method": config.method,
                "flow_seconds_per_call": flow_seconds / max(2 * len(pairs), 1),
                "depth_source": config.depth_source, "mask_source": config.mask_source,
-               "per_pair": per_pair}
+               "radar_objects": objects_note, "models": totals, "per_pair": per_pair}
     atomic_write_json(out / "summary.json", summary)
     atomic_write_json(out / "config.json", to_dict(config))
     return summary
+
+
+def _radar_objects(scene, prepared_dir: str | Path | None, config: FlowConfig) -> tuple[list | None, str]:
+    """The per-frame radar objects for the radar-guided step (None when off or unavailable) and a
+    note for the summary. A missing or stale objects.json falls back to the unguided step: the flow
+    stage must still run on a prepared folder from before the radar objects existed."""
+    if not config.radar_guided:
+        return None, "off (radar_guided=False)"
+    if prepared_dir is None:
+        return None, "unavailable: no prepared folder"
+    try:
+        objects = load_radar_objects(prepared_dir)
+    except (FileNotFoundError, ValueError) as exc:
+        return None, f"unavailable: {exc}"
+    if len(objects) != len(scene):
+        return None, f"unavailable: objects.json has {len(objects)} frames, the scene {len(scene)} (stale)"
+    return objects, "used"
 
 
 def load_flow_pairs(prepared_dir: str | Path) -> list[dict[str, np.ndarray]]:

@@ -86,12 +86,23 @@ def rigid_object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, 
         rows, cols = np.nonzero(labels == label)
         if len(rows) < min_pixels:
             continue
-        pixels = np.stack([cols, rows], axis=1)
-        dense = flow[rows, cols].astype(np.float64)
-        found = object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), search)
-        if found is None:
-            continue
-        shift, error = found
-        if error < accept * _photometric_error(gray_a, gray_b, pixels, pixels + dense):
+        shift = component_translation(gray_a, gray_b, np.stack([cols, rows], axis=1),
+                                      flow[rows, cols].astype(np.float64), search, accept)
+        if shift is not None:
             out[rows, cols] = shift
     return out
+
+
+def component_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, dense: np.ndarray,
+                          search: int, accept: float) -> np.ndarray | None:
+    """(2,) the object's translation when it explains the images better than its dense flow
+    (error below ``accept`` x the dense flow's), else None.
+
+    Args:
+        pixels: (N, 2) integer (u, v) of one object in a; dense: (N, 2) their dense flow a -> b.
+    """
+    found = object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), search)
+    if found is None:
+        return None
+    shift, error = found
+    return shift if error < accept * _photometric_error(gray_a, gray_b, pixels, pixels + dense) else None

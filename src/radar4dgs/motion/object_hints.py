@@ -1,0 +1,125 @@
+"""Radar objects as hints for the flow of the dynamic-mask components: each radar object's returns
+projected into its frame's image (to find the component it belongs to) and its world velocity, and
+the flow a component's pixels would have if their 3D points moved with that velocity.
+
+The prediction moves each pixel's 3D point (depth lifted, as :mod:`.lift` does) by ``v dt`` in the
+world and projects it into the other frame's camera, so it carries the ego motion, the object's
+motion and the change of scale of an object coming closer (a zoom, not a translation) at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radar4dgs.motion.lift import backproject
+
+
+@dataclass(frozen=True)
+class ObjectHint:
+    """One radar object of one frame, seen from that frame's camera.
+
+    Attributes:
+        uv: (K, 2) float64 its returns projected into the image (in front of the camera only).
+        velocity: (3,) float64 world velocity (m/s).
+        track: the radar track id (for the summary).
+    """
+
+    uv: np.ndarray
+    velocity: np.ndarray
+    track: int = -1
+
+
+def project_returns(xyz_radar: np.ndarray, radar_to_camera: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(K', 2) pixel coordinates of the (K, 3) radar-frame points in front of the camera (K' <= K)."""
+    xyz = np.asarray(xyz_radar, dtype=np.float64).reshape(-1, 3)
+    cam = xyz @ radar_to_camera[:3, :3].T + radar_to_camera[:3, 3]
+    cam = cam[cam[:, 2] > 1e-3]
+    uv = (cam @ np.asarray(K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
+    return uv
+
+
+def frame_hints(scene, index: int, objects) -> list[ObjectHint]:
+    """The hints of frame ``index`` from its radar objects (``radar.objects.RadarObject`` list).
+
+    An object's ``points`` are rows of ``scene.load_radar(index)``; rows beyond the scan (a stale
+    objects.json) are ignored rather than trusted. The velocity is the track's (Kalman-filtered
+    over frames), steadier than one scan's fit.
+    """
+    if not objects:
+        return []
+    scan = scene.load_radar(index)
+    xyz = scan.xyz.astype(np.float64)
+    to_camera = scene.radar_to_camera(index)
+    hints = []
+    for obj in objects:
+        rows = obj.points[(obj.points >= 0) & (obj.points < len(xyz))]
+        velocity = np.asarray(obj.velocity, dtype=np.float64)
+        if len(rows) == 0 or not np.all(np.isfinite(velocity)):
+            continue
+        hints.append(ObjectHint(project_returns(xyz[rows], to_camera, scene.camera.K), velocity, int(obj.track)))
+    return hints
+
+
+def associate_components(labels: np.ndarray, hints: list[ObjectHint], radius: float,
+                         min_returns: int) -> dict[int, ObjectHint]:
+    """The radar object of each component of a labelled dynamic mask.
+
+    Each object votes with its returns for the component each lands on, or the nearest one within
+    ``radius`` px (radar elevation noise puts returns a few px off the mask); it belongs to the
+    component with most votes if they are at least ``min_returns``. A component claimed by several
+    objects keeps the one with most votes there.
+
+    Args:
+        labels: (H, W) int component labels (0 = background), as ``cv2.connectedComponents``.
+        hints: the frame's objects.
+    Returns:
+        {component label: hint}.
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    height, width = labels.shape
+    if not hints or labels.max() == 0:
+        return {}
+    # For every pixel the label of the nearest labelled pixel and its distance.
+    distance, (near_v, near_u) = distance_transform_edt(labels == 0, return_indices=True)
+    nearest = np.where(distance <= radius, labels[near_v, near_u], 0)
+    best: dict[int, tuple[int, ObjectHint]] = {}
+    for hint in hints:
+        u, v = np.round(hint.uv[:, 0]), np.round(hint.uv[:, 1])
+        inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        votes = nearest[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        votes = votes[votes > 0]
+        if len(votes) == 0:
+            continue
+        label = int(np.bincount(votes).argmax())
+        count = int((votes == label).sum())
+        if count >= min_returns and count > best.get(label, (0, hint))[0]:
+            best[label] = (count, hint)
+    return {label: hint for label, (_, hint) in best.items()}
+
+
+def predicted_targets(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, world_to_cam_a: np.ndarray,
+                      world_to_cam_b: np.ndarray, displacement: np.ndarray) -> np.ndarray | None:
+    """Where an object's pixels of frame a land in frame b if its points move by ``displacement``.
+
+    Pixels without a valid depth take the median depth of the others (one object: similar depths).
+
+    Args:
+        pixels: (N, 2) (u, v) of frame a; depth: (N,) their z-depth in frame a (NaN/inf/<= 0 invalid).
+        K: (3, 3). world_to_cam_a, world_to_cam_b: (4, 4). displacement: (3,) world (m), ``v dt``.
+    Returns:
+        (N, 2) float64 targets in frame b (NaN for points behind camera b), or None when no pixel
+        has a valid depth.
+    """
+    z = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    if not valid.any():
+        return None
+    z = np.where(valid, z, np.median(z[valid]))
+    world = backproject(np.asarray(pixels, dtype=np.float64), z, K, world_to_cam_a) + displacement
+    cam = world @ world_to_cam_b[:3, :3].T + world_to_cam_b[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (cam @ np.asarray(K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
+    return np.where((cam[:, 2] > 1e-3)[:, None], uv, np.nan)
