@@ -1,5 +1,6 @@
 """Benchmark of the motion stage (issue 7): field invertibility, DIS speed, and the standalone fit's
-dynamic scene-flow error on synthetic scenes for flow-only, radar-only and both.
+dynamic scene-flow error on synthetic scenes for flow-only, radar-only, both, and both with the radar
+objects' velocity term (both_velocity).
 
     python benchmarks/motion.py [--seeds 1 2 3 4 5] [--preset small] [--work /tmp/radar4dgs-motion-bench] [--oracle]
                                 [--traffic calm|realistic] [--fps 10]
@@ -39,7 +40,10 @@ from radar4dgs.motion.optical_flow import time_dis
 from radar4dgs.train.fit_motion import MotionConfig, run_fit
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
-MODES = {"flow_only": (True, False), "radar_only": (False, True), "both": (True, True)}
+# mode: (use_flow, use_radar, use_velocity); both_velocity adds the radar objects' velocity term
+# (L_vel, FitConfig.velocity_*) to both, the other modes never use it.
+MODES = {"flow_only": (True, False, False), "radar_only": (False, True, False), "both": (True, True, False),
+         "both_velocity": (True, True, True)}
 
 
 def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
@@ -130,8 +134,8 @@ def main() -> None:
         objects, _ = object_velocity_metrics(scene, prepared)
         entry = {**info, "image_motion_px": motion, "flow_seconds_per_call": flow_summary["flow_seconds_per_call"],
                  "frontend": motion_frontend_metrics(scene, prepared), "radar_objects": objects}
-        for mode, (use_flow, use_radar) in MODES.items():
-            _, result = run_fit(scene, prepared, config, use_flow, use_radar)
+        for mode, (use_flow, use_radar, use_velocity) in MODES.items():
+            _, result = run_fit(scene, prepared, config, use_flow, use_radar, use_velocity=use_velocity)
             entry[mode] = {"epe": result["sceneflow"]["epe"],
                            "epe_train_pairs": result["sceneflow"]["epe_train_pairs"],
                            "epe_held_out_pairs": result["sceneflow"]["epe_held_out_pairs"],
@@ -139,6 +143,9 @@ def main() -> None:
                            "roundtrip_max_m": result["sceneflow"]["roundtrip_max"],
                            "radar_matched": result.get("radar_matched"),
                            "flow_pairs": result.get("flow_pairs")}
+            if use_velocity:
+                entry[mode].update({k: result.get(k) for k in ("velocity_objects", "velocity_objects_rejected",
+                                                               "velocity_samples", "velocity_note")})
             entry["zero_motion_epe"] = result["sceneflow"]["zero_motion_epe"]
             print(f"seed {seed} {mode:<10} EPE {entry[mode]['epe']:.3f} m  fit {entry[mode]['fit_seconds']:.0f} s",
                   flush=True)
@@ -170,6 +177,7 @@ def summarize(report: dict) -> None:
         both < summary[f"{m}_epe_mean"] for m in ("flow_only", "radar_only"))
     summary["both_beats_each_per_seed"] = [s["both"]["epe"] < min(s["flow_only"]["epe"], s["radar_only"]["epe"])
                                            for s in seeds]
+    summary["both_velocity_beats_both_per_seed"] = [s["both_velocity"]["epe"] < s["both"]["epe"] for s in seeds]
     report["summary"] = summary
 
 

@@ -1,4 +1,4 @@
-"""L_flow and L_rad against hand-computed cases (a field that is a known translation, two points)."""
+"""L_flow, L_rad and L_vel against hand-computed cases (a field that is a known translation, two points)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,12 @@ from radar4dgs.metrics.losses import (
     binary_cross_entropy,
     flow_loss,
     flow_residual,
+    huber_of_squared,
     inverse_depth_l1,
     radar_loss,
     radar_residual,
+    velocity_loss,
+    velocity_residual,
 )
 from radar4dgs.model.field import DeformationField, FieldConfig
 from radar4dgs.train.fit_motion import torch_threads
@@ -84,6 +87,56 @@ def test_residuals_directly():
     assert radar_residual(displacement, x, torch.zeros(3), torch.tensor([1.0]), 0.5).item() == pytest.approx(0.5)
     # approaching (negative v_r) with a displacement away from the radar: |1 - (-0.5)| = 1.5
     assert radar_residual(displacement, x, torch.zeros(3), torch.tensor([-1.0]), 0.5).item() == pytest.approx(1.5)
+
+
+def test_velocity_residual_closed_forms():
+    # Isotropic: S = 0, s0 = 0.1 m; v dt = (2, 0) * 0.5 = (1, 0); F = (1.3, 0.4, 5): e = (0.3, 0.4),
+    # |e| = 0.5 m = 5 sigma. F_z = 5 m is free (not part of the residual).
+    F = torch.tensor([[1.3, 0.4, 5.0]], dtype=torch.float64)
+    v = torch.tensor([[2.0, 0.0, 0.0]], dtype=torch.float64)
+    zero = torch.zeros(1, 2, 2, dtype=torch.float64)
+    assert velocity_residual(F, v, zero, 0.5, 0.1).item() == pytest.approx(5.0)
+    assert velocity_residual(F, v[:, :2], zero, torch.tensor([0.5], dtype=torch.float64), 0.1).item() \
+        == pytest.approx(5.0)
+    # Anisotropic: S = diag(4, 1) (m/s)^2, dt = 0.5 s -> S dt^2 = diag(1, 0.25) m^2; s0 -> 0;
+    # e = (1, 0.5): r^2 = 1 / 1 + 0.25 / 0.25 = 2.
+    S = torch.tensor([[[4.0, 0.0], [0.0, 1.0]]], dtype=torch.float64)
+    F = torch.tensor([[1.0, 0.5, 0.0]], dtype=torch.float64)
+    assert velocity_residual(F, torch.zeros(1, 2, dtype=torch.float64), S, 0.5, 1e-9).item() \
+        == pytest.approx(math.sqrt(2.0))
+    # A correlated covariance: the same error is cheap along the long axis of the ellipse and dear
+    # across it. S = R diag(9, 0.01) R^T with R a 45 deg rotation, dt = 1, s0 = 0.
+    R = torch.tensor([[1.0, -1.0], [1.0, 1.0]], dtype=torch.float64) / math.sqrt(2.0)
+    S = (R @ torch.diag(torch.tensor([9.0, 0.01], dtype=torch.float64)) @ R.T)[None]
+    along = torch.tensor([[3.0 / math.sqrt(2.0), 3.0 / math.sqrt(2.0), 0.0]], dtype=torch.float64)  # |e| 3, 1 sigma
+    across = torch.tensor([[-0.1 / math.sqrt(2.0), 0.1 / math.sqrt(2.0), 0.0]], dtype=torch.float64)  # 0.1, 1 sigma
+    zero_v = torch.zeros(1, 2, dtype=torch.float64)
+    assert velocity_residual(along, zero_v, S, 1.0, 1e-9).item() == pytest.approx(1.0)
+    assert velocity_residual(across, zero_v, S, 1.0, 1e-9).item() == pytest.approx(1.0)
+    assert velocity_residual(3 * across, zero_v, S, 1.0, 1e-9).item() == pytest.approx(3.0)
+
+
+def test_huber_of_squared_and_velocity_loss():
+    squared = torch.tensor([0.0, 0.25, 4.0, 9.0], dtype=torch.float64, requires_grad=True)
+    # delta 1: r = 0, 0.5 -> r^2 / 2 = 0, 0.125; r = 2, 3 -> r - 0.5 = 1.5, 2.5
+    value = huber_of_squared(squared, 1.0)
+    assert value.tolist() == pytest.approx([0.0, 0.125, 1.5, 2.5])
+    value.sum().backward()
+    assert torch.isfinite(squared.grad).all()  # no NaN from sqrt at r = 0
+    # Translation (2, 0, 0) per unit t over t 0.25 -> 0.75: F = (1, 0, 0). Over dt = 1 s an object
+    # velocity (1, 0) explains it (r = 0); (0, 0) leaves e = (1, 0), r = 1 / 0.5 = 2 -> Huber 1.5.
+    field = Translation([2.0, 0.0, 0.0]).double()
+    x = torch.zeros(2, 3, dtype=torch.float64)
+    velocity = torch.tensor([[1.0, 0.0], [0.0, 0.0]], dtype=torch.float64)
+    covariance = torch.zeros(2, 2, 2, dtype=torch.float64)
+    per_point = velocity_loss(field, x, 0.25, 0.75, 1.0, velocity, covariance, position_std=0.5, huber=1.0,
+                              reduction="none")
+    assert per_point.tolist() == pytest.approx([0.0, 1.5])
+    assert velocity_loss(field, x, 0.25, 0.75, 1.0, velocity, covariance, 0.5, 1.0).item() == pytest.approx(0.75)
+    # A large velocity covariance makes the same error cheap: S dt^2 = 3.75 + s0^2 0.25 -> r = 0.5.
+    loose = torch.eye(2, dtype=torch.float64).expand(2, 2, 2) * 3.75
+    assert velocity_loss(field, x, 0.25, 0.75, 1.0, velocity, loose, 0.5, 1.0, reduction="none").tolist() \
+        == pytest.approx([0.0, 0.125])
 
 
 def test_losses_train_a_real_field_towards_a_translation():

@@ -171,6 +171,30 @@ def test_training_runs_all_stages_and_improves(prepared, tmp_path):
     assert model.num_gaussians == state.model.num_gaussians
 
 
+def test_velocity_term_reaches_the_trainer_only_with_a_weight(prepared):
+    from radar4dgs.io.scene import read_scene
+    from radar4dgs.model.field import DeformationField
+    from radar4dgs.model.run import LOSS_TERMS
+    from radar4dgs.train.data import load_motion_targets
+    from radar4dgs.train.objective import loss_weights, motion_losses
+
+    scene_dir, prep = prepared
+    scene = read_scene(scene_dir)
+    field = DeformationField(preset(TrainConfig, "tiny").field)
+    off_config, on_config = tiny_config(), tiny_config(losses={"velocity_weight": 0.1})
+    assert set(loss_weights(on_config)) == set(LOSS_TERMS) and loss_weights(on_config)["velocity"] == 0.1
+    off, on = load_motion_targets(scene, prep, off_config), load_motion_targets(scene, prep, on_config)
+    assert off.velocity is None and on.velocity is not None and on.stats["velocity_samples"] == len(on.velocity) > 0
+
+    def losses(targets):
+        return motion_losses(field, targets, 64, step_generator(0, 0), torch.device("cpu"), torch.float32)
+
+    without, with_velocity = losses(off), losses(on)
+    assert "velocity" not in without and math.isfinite(float(with_velocity["velocity"].detach()))
+    # The velocity draw comes last: the flow and radar minibatches are the same with it.
+    assert all(torch.equal(without[k], with_velocity[k]) for k in without)
+
+
 @pytest.mark.parametrize("lifespan", [0.2, 0.0])
 def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_path, lifespan):
     scene, prep = prepared

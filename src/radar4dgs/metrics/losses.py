@@ -1,5 +1,5 @@
-"""The two supervision terms of the deformation field (DESIGN.md stage 6), as functions the trainer
-and the standalone fit call.
+"""The supervision terms of the deformation field (DESIGN.md stage 6, and a velocity term), as
+functions the trainer and the standalone fit call.
 
 - ``L_flow = mean_n |D_tj(D_ti^-1(x_i)) - x_j|^2``: pseudo scene flow pairs (x_i at t_i, x_j at
   t_j) must be carried onto each other. Squared Euclidean norm (m^2) per pair.
@@ -8,6 +8,14 @@ and the standalone fit call.
   vector: the world frame is the same at every time, so "the frame of time i" is just the start
   point x of the displacement); A the radar centre (world) at time i; v_r the compensated radial
   velocity of the associated radar point (m/s, positive receding). Absolute value (m) per point.
+- ``L_vel = mean_n huber(r_n)``, ``r = sqrt(e^T (S dt^2 + s0^2 I)^-1 e)``, ``e = F_xy - v_xy dt``: the
+  full planar velocity ``v`` of a radar object (covariance ``S``, m^2/s^2) carried over dt must match
+  the displacement F of the object's points (an addition to the paper, issue 21: where optical flow
+  is missing or rejected, Doppler alone cannot see motion across the line of sight). ``r`` is a
+  Mahalanobis distance (in standard deviations, dimensionless); ``s0`` (m) floors the uncertainty,
+  for what the velocity does not model (a turning car's ``omega x r dt``, the field's smoothness).
+  Huber, so a wrongly tracked object pulls with a bounded force. F_z is left free (``v_z = 0`` is
+  an assumption of the radar fit, not a measurement).
 
 Reduction: the paper writes sums; we return means over the (valid) points by default, so the loss
 weights do not depend on how many points or Gaussians a batch holds (``reduction="sum"`` gives the
@@ -65,6 +73,40 @@ def radar_residual(displacement: Tensor, x: Tensor, centre: Tensor, v_r: Tensor,
     return ((displacement * direction).sum(dim=-1) - v_r * dt).abs()
 
 
+def huber_of_squared(squared: Tensor, delta: float) -> Tensor:
+    """(N,) Huber of ``r = sqrt(squared)``: ``r^2 / 2`` for ``r <= delta``, ``delta (r - delta / 2)``
+    beyond. Takes ``r^2`` so the quadratic branch needs no square root (whose gradient at 0 is NaN)."""
+    root = squared.clamp_min(delta * delta).sqrt()  # only used where squared > delta^2
+    return torch.where(squared <= delta * delta, 0.5 * squared, delta * (root - 0.5 * delta))
+
+
+def velocity_squared_residual(displacement: Tensor, velocity: Tensor, covariance: Tensor, dt: Tensor | float,
+                              position_std: float) -> Tensor:
+    """(N,) ``r^2 = e^T (S dt^2 + s0^2 I)^-1 e`` with ``e = F_xy - v_xy dt`` (module doc).
+
+    Args:
+        displacement: (N, 3) predicted displacement F over dt (m); its z is not used.
+        velocity: (N, 2) or (N, 3) object velocity (world, m/s); only x, y are used.
+        covariance: (N, 2, 2) covariance S of the planar velocity (m^2/s^2).
+        dt: scalar or (N,) seconds; position_std: s0 (m), > 0.
+    """
+    dt = torch.as_tensor(dt, dtype=displacement.dtype, device=displacement.device).expand(len(displacement))
+    e = displacement[:, :2] - velocity[:, :2] * dt[:, None]  # (N, 2)
+    c = covariance * (dt * dt)[:, None, None]  # (N, 2, 2) position covariance of v dt
+    a, b = c[:, 0, 0] + position_std ** 2, c[:, 0, 1]
+    b2, d = c[:, 1, 0], c[:, 1, 1] + position_std ** 2
+    # Closed-form inverse of the 2x2 C = [[a, b], [b2, d]] (S symmetric: b = b2).
+    det = (a * d - b * b2).clamp_min(1e-30)
+    return (d * e[:, 0] ** 2 - (b + b2) * e[:, 0] * e[:, 1] + a * e[:, 1] ** 2) / det
+
+
+def velocity_residual(displacement: Tensor, velocity: Tensor, covariance: Tensor, dt: Tensor | float,
+                      position_std: float) -> Tensor:
+    """(N,) Mahalanobis planar distance ``r`` (standard deviations); arguments as
+    :func:`velocity_squared_residual`."""
+    return velocity_squared_residual(displacement, velocity, covariance, dt, position_std).sqrt()
+
+
 def flow_loss(field: DeformationField, x_i: Tensor, x_j: Tensor, t_i: Tensor | float, t_j: Tensor | float,
               weight: Tensor | None = None, reduction: Reduction = "mean") -> Tensor:
     """``L_flow`` for (N, 3) point pairs ``x_i`` (time ``t_i``) -> ``x_j`` (time ``t_j``); times
@@ -90,6 +132,20 @@ def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Ten
         t_i, t_j, dt, weight = (per_point(v, 1) for v in (t_i, t_j, dt, weight))
     residual = radar_residual(field.displacement(x, t_i, t_j), x, centre, v_r, dt)
     return _reduce(residual, weight, reduction)
+
+
+def velocity_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Tensor | float,
+                  dt: Tensor | float, velocity: Tensor, covariance: Tensor, position_std: float = 0.05,
+                  huber: float = 1.0, weight: Tensor | None = None, reduction: Reduction = "mean") -> Tensor:
+    """``L_vel`` for (N, 3) points ``x`` at time ``t_i`` displaced to ``t_j`` over ``dt`` seconds.
+
+    Args:
+        velocity: (N, 2) or (N, 3) their object's world velocity (m/s); covariance: (N, 2, 2) its
+        planar covariance; position_std: s0 (m); huber: the Huber threshold on ``r`` (standard
+        deviations); weight: optional (N,).
+    """
+    squared = velocity_squared_residual(field.displacement(x, t_i, t_j), velocity, covariance, dt, position_std)
+    return _reduce(huber_of_squared(squared, huber), weight, reduction)
 
 
 def binary_cross_entropy(probability: Tensor, target: Tensor) -> Tensor:

@@ -178,7 +178,11 @@ class LossConfig:
     flow_weight: float = 1.0
     # Weight of L_rad (m) on the field (as the standalone fit's radar_weight).
     radar_weight: float = 0.5
-    # Flow pairs and radar points drawn per iteration for L_flow and L_rad.
+    # Weight of L_vel (radar objects' full velocity; the standalone fit's FitConfig.velocity_weight),
+    # 0 = off. Off in training by default: like radar_returns_as_points, it supervises the field at
+    # radar returns, and its effect on rendering has not been measured (benchmarks/reconstruct.py).
+    velocity_weight: float = 0.0
+    # Flow pairs and radar points drawn per iteration for L_flow and L_rad (and L_vel).
     motion_batch: int = 1024
     # Association gate (m) of a dynamic point to its nearest dynamic radar point.
     radar_gate: float = 2.0

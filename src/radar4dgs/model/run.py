@@ -28,7 +28,7 @@ CHECKPOINT_DIR = "checkpoints"
 LAST_CHECKPOINT = "last.pt"
 HISTORY_FILE = "history.json"
 # The named terms of the training loss, as logged in history.json.
-LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar")
+LOSS_TERMS = ("l1", "ssim", "depth", "object", "sky", "flow", "radar", "velocity")
 
 
 @dataclass

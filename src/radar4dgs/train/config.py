@@ -37,6 +37,37 @@ class FitConfig:
     # has radar returns with an exact range. Synthetic small seeds 1-5, both terms, radar_weight
     # 0.5: dynamic EPE 0.176/0.171/0.174/0.222/0.125 m without, 0.168/0.158/0.160/0.191/0.118 m with.
     radar_returns_as_points: bool = True
+    # Velocity term L_vel (metrics.losses; issue 21, 3b): the returns of each radar object of
+    # <prepared>/radar/objects.json (radar_source "oracle": the generator's objects and velocities)
+    # must move by the object's tracked planar velocity times dt. It sees motion across the line of
+    # sight where optical flow failed (a fast object) and Doppler cannot. Off without objects.json.
+    # Realistic-traffic tuning seeds 101-105 (benchmarks/motion.py, both terms, fit seeds 0 and 1
+    # averaged): dynamic EPE 0.254/0.214/0.244/0.191/0.865 m without, 0.130/0.112/0.142/0.136/0.749
+    # with (seed 105: a pedestrian at 9 m EPE either way, no radar object of its own).
+    velocity: bool = True
+    # Weight of L_vel (Huber of a Mahalanobis distance, dimensionless) against L_flow (m^2). Tuning
+    # seeds 101-104 (fit seed 0), mean EPE: 0.157 at 0.01, 0.137 at 0.03, 0.136 at 0.1, 0.135 at
+    # 0.3, 0.170 at 1 (0.221 without); 0.1 sits in the middle of the flat part.
+    velocity_weight: float = 0.1
+    # Objects with fewer returns in a frame are not used: 2-3 returns rarely span enough azimuth.
+    velocity_min_returns: int = 3
+    # Objects whose velocity std sqrt(trace S) (m/s) exceeds this are not used: a radial-only
+    # fallback carries 10 m/s across the line of sight, a fresh track a few m/s.
+    velocity_max_std: float = 1.0
+    # s0 (m): floor of the displacement std, added to S dt^2 (the field's smoothness, a turning
+    # car's omega x r dt, the radar's timing).
+    velocity_position_std: float = 0.05
+    # Huber threshold on the Mahalanobis distance (standard deviations): beyond it a point pulls
+    # with a constant force, so a wrong track cannot dominate (3: the same EPE on the tuning seeds).
+    velocity_huber: float = 1.0
+    # Also give each object's velocity to the dynamic pixels of frame i (lifted with depth_source,
+    # radar_points_per_frame at most) whose nearest object return is within radar_gate: "off";
+    # "no_flow" only for objects with fewer than velocity_flow_pairs flow pairs starting within
+    # radar_gate of their returns (a fast object whose optical flow failed); "all". Tuning seeds
+    # 101-105, fit seeds 0 and 1, mean EPE: 0.273 m off, 0.254 no_flow; all (seed 0): 0.309.
+    velocity_pixels: Literal["off", "no_flow", "all"] = "no_flow"
+    # An object with at least this many flow pairs near its returns counts as covered by L_flow.
+    velocity_flow_pairs: int = 20
     # Adam iterations.
     iterations: int = 1000
     # Points per term per iteration (flow pairs and radar points are drawn separately).

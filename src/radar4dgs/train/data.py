@@ -26,7 +26,9 @@ from radar4dgs.train.fit_motion import (
     FitConfig,
     FlowSamples,
     RadarSamples,
+    VelocitySamples,
     collect_radar_samples,
+    collect_velocity_samples,
     flow_samples_from_pairs,
 )
 
@@ -116,16 +118,21 @@ def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: n
 
 @dataclass
 class MotionTargets:
-    """The field's supervision as tensors (either may be None when absent)."""
+    """The field's supervision as arrays (each may be None when absent); ``velocity_*`` the
+    ``L_vel`` settings (FitConfig's) it was sampled with."""
 
     flow: FlowSamples | None
     radar: RadarSamples | None
     stats: dict
+    velocity: VelocitySamples | None = None
+    velocity_position_std: float = FitConfig.velocity_position_std
+    velocity_huber: float = FitConfig.velocity_huber
 
 
 def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTargets:
     """Lifted flow pairs (``prepared/flow``) and radar-associated dynamic points of every training
-    frame pair; each is None when the scene has none (no dynamic pixels, no flow folder)."""
+    frame pair, and (``losses.velocity_weight > 0``) the radar objects' points with their velocity;
+    each is None when the scene has none (no dynamic pixels, no flow folder, no objects.json)."""
     times = normalized_times(scene)
     flow = None
     stats: dict = {}
@@ -136,4 +143,10 @@ def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTar
                     radar_returns_as_points=config.losses.radar_returns_as_points, seed=config.seed)
     radar, radar_stats = collect_radar_samples(scene, prepared, FlowConfig(), fit, times)
     stats.update(radar_stats)
-    return MotionTargets(flow if flow is not None and len(flow) else None, radar if len(radar) else None, stats)
+    velocity = None
+    if config.losses.velocity_weight > 0:
+        velocity, velocity_stats = collect_velocity_samples(scene, prepared, FlowConfig(), fit, times)
+        stats.update(velocity_stats)
+    return MotionTargets(flow if flow is not None and len(flow) else None, radar if len(radar) else None, stats,
+                         velocity if velocity is not None and len(velocity) else None,
+                         fit.velocity_position_std, fit.velocity_huber)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,13 +35,21 @@ import torch
 
 from radar4dgs.config import to_dict
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.metrics.losses import flow_loss, radar_loss
+from radar4dgs.metrics.losses import flow_loss, radar_loss, velocity_loss
 from radar4dgs.model.field import DeformationField, FieldConfig
 from radar4dgs.motion.association import associate_velocities, load_radar_dynamics
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import frame_pairs, load_depth, load_flow_pairs, load_mask, prepare_flow
 from radar4dgs.motion.lift import backproject
 from radar4dgs.train.config import FitConfig, MotionConfig
+from radar4dgs.train.object_points import (
+    ObjectPoints,
+    flow_near,
+    frame_objects,
+    oracle_object_points,
+    pixels_of_objects,
+    prepared_object_points,
+)
 
 # --------------------------------------------------------------------------------------------
 # Data
@@ -137,6 +146,89 @@ def collect_radar_samples(scene, prepared_dir: str | Path | None, flow_config: F
     return RadarSamples(**joined), stats
 
 
+@dataclass
+class VelocitySamples:
+    """Points of radar objects: x (N, 3) at t_i (N,), displaced to t_j (N,) over dt (N,) seconds;
+    their object's planar world velocity (N, 2) (m/s) and its covariance (N, 2, 2) (m^2/s^2)."""
+
+    x: np.ndarray
+    t_i: np.ndarray
+    t_j: np.ndarray
+    dt: np.ndarray
+    velocity: np.ndarray
+    covariance: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.x))
+
+
+def add_object_pixels(scene, index: int, found: list[ObjectPoints], prepared_dir, flow_config: FlowConfig,
+                      fit: FitConfig, flow_points: np.ndarray | None,
+                      rng: np.random.Generator) -> tuple[list[ObjectPoints], int]:
+    """``found`` with each object's dynamic pixels of frame ``index`` added to its returns
+    (``fit.velocity_pixels``: all objects, or those with too few flow pairs near them, whose
+    start points ``flow_points`` (F, 3) are given), and how many pixels were added."""
+    wanted = [fit.velocity_pixels == "all" or flow_near(o[0], flow_points, fit.radar_gate) < fit.velocity_flow_pairs
+              for o in found]
+    if not any(wanted):
+        return found, 0
+    depth = load_depth(scene, index, flow_config.depth_source, prepared_dir)
+    mask = load_mask(scene, index, flow_config.mask_source, prepared_dir)
+    pixels = dynamic_points(depth, mask, scene.camera.K, scene.world_to_camera(index), fit.radar_points_per_frame,
+                            rng)
+    split = pixels_of_objects(pixels, found, fit.radar_gate)
+    out = [(np.concatenate([points, extra]), v, S) if want else (points, v, S)
+           for (points, v, S), extra, want in zip(found, split, wanted, strict=True)]
+    return out, sum(len(extra) for extra, want in zip(split, wanted, strict=True) if want)
+
+
+def _flow_start_points(prepared_dir, fit: FitConfig) -> dict[int, np.ndarray]:
+    """Frame index -> (F, 3) start points of its flow pairs, for ``velocity_pixels="no_flow"``
+    (empty when off or when there is no prepared flow: then no object has flow)."""
+    if fit.velocity_pixels != "no_flow" or prepared_dir is None or not (Path(prepared_dir) / "flow").is_dir():
+        return {}
+    return {int(pair["index_i"]): pair["points_i"] for pair in load_flow_pairs(prepared_dir)}
+
+
+def collect_velocity_samples(scene, prepared_dir: str | Path | None, flow_config: FlowConfig, fit: FitConfig,
+                             times: np.ndarray) -> tuple[VelocitySamples, dict]:
+    """Radar-object points of every frame pair (:func:`frame_pairs`) for ``L_vel``, and stats.
+
+    Without ``<prepared>/radar/objects.json`` (older prepared folders) the samples are empty and
+    ``stats["velocity_note"]`` says why: the term is then off, not an error.
+    """
+    columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "t_i", "t_j", "dt", "velocity", "covariance")}
+    stats: dict[str, Any] = {"velocity_objects": 0, "velocity_objects_rejected": 0, "velocity_pixels": 0,
+                             "velocity_note": None}
+    per_frame, stats["velocity_note"] = frame_objects(scene, prepared_dir, fit)
+    if stats["velocity_note"]:
+        warnings.warn(stats["velocity_note"], stacklevel=2)
+    rng = np.random.default_rng(fit.seed)  # its own stream: the radar samples' draws stay as they were
+    flow_points = _flow_start_points(prepared_dir, fit)
+    for i, j in frame_pairs(scene, flow_config.skip_test_frames) if per_frame is not None else ():
+        if fit.radar_source == "oracle":
+            found, rejected = oracle_object_points(scene, i, fit), 0
+        else:
+            found, rejected = prepared_object_points(scene, i, per_frame[i], fit)
+        if fit.velocity_pixels != "off" and found:
+            found, added = add_object_pixels(scene, i, found, prepared_dir, flow_config, fit, flow_points.get(i), rng)
+            stats["velocity_pixels"] += added
+        stats["velocity_objects"] += len(found)
+        stats["velocity_objects_rejected"] += rejected
+        for points, velocity, covariance in found:
+            n = len(points)
+            columns["x"].append(points)
+            columns["velocity"].append(np.repeat(velocity[None], n, axis=0))
+            columns["covariance"].append(np.repeat(covariance[None], n, axis=0))
+            columns["t_i"].append(np.full(n, times[i]))
+            columns["t_j"].append(np.full(n, times[j]))
+            columns["dt"].append(np.full(n, scene.frames[j].timestamp - scene.frames[i].timestamp))
+    shapes = {"x": (0, 3), "velocity": (0, 2), "covariance": (0, 2, 2)}
+    joined = {k: (np.concatenate(v) if v else np.zeros(shapes.get(k, (0,)))) for k, v in columns.items()}
+    stats["velocity_samples"] = len(joined["x"])
+    return VelocitySamples(**joined), stats
+
+
 # --------------------------------------------------------------------------------------------
 # Optimisation
 
@@ -146,14 +238,15 @@ def _torch_dtype(name: str) -> torch.dtype:
 
 
 def fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
-              fit: FitConfig, progress: bool = False) -> tuple[DeformationField, list[dict]]:
-    """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad``.
+              fit: FitConfig, progress: bool = False,
+              velocity: VelocitySamples | None = None) -> tuple[DeformationField, list[dict]]:
+    """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad + velocity_weight * L_vel``.
 
-    Either sample set may be None or empty (that term is off). The normalisation is fitted to
+    Any sample set may be None or empty (that term is off). The normalisation is fitted to
     every sample point. Returns the field (eval mode) and a loss history (every 50 iterations).
     """
     with torch_threads(fit.threads):
-        return _fit_field(flow, radar, field_config, fit, progress)
+        return _fit_field(flow, radar, velocity, field_config, fit, progress)
 
 
 @contextlib.contextmanager
@@ -169,27 +262,42 @@ def torch_threads(threads: int):
         torch.set_num_threads(previous)
 
 
-def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
-               fit: FitConfig, progress: bool) -> tuple[DeformationField, list[dict]]:
-    use_flow = flow is not None and len(flow) > 0
-    use_radar = radar is not None and len(radar) > 0
-    if not (use_flow or use_radar):
-        raise ValueError("nothing to fit: no flow pairs and no radar-associated points")
+def _term_columns(flow: FlowSamples | None, radar: RadarSamples | None,
+                  velocity: VelocitySamples | None) -> dict[str, tuple[np.ndarray, ...]]:
+    """The arrays of each term that has samples, in the order the minibatches are drawn (flow,
+    radar, velocity: a term added later must not change the draws of the earlier ones)."""
+    columns = {}
+    if flow is not None and len(flow) > 0:
+        columns["flow"] = (flow.x_i, flow.x_j, flow.t_i, flow.t_j)
+    if radar is not None and len(radar) > 0:
+        columns["radar"] = (radar.x, radar.t_i, radar.t_j, radar.dt, radar.centre, radar.v_r)
+    if velocity is not None and len(velocity) > 0:
+        columns["velocity"] = (velocity.x, velocity.t_i, velocity.t_j, velocity.dt, velocity.velocity,
+                               velocity.covariance)
+    return columns
+
+
+def _term_loss(name: str, deformation: DeformationField, batch: list[torch.Tensor], fit: FitConfig) -> torch.Tensor:
+    if name == "flow":
+        return flow_loss(deformation, *batch)
+    if name == "radar":
+        return radar_loss(deformation, *batch)
+    return velocity_loss(deformation, *batch, position_std=fit.velocity_position_std, huber=fit.velocity_huber)
+
+
+def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, velocity: VelocitySamples | None,
+               field_config: FieldConfig, fit: FitConfig, progress: bool) -> tuple[DeformationField, list[dict]]:
+    columns = _term_columns(flow, radar, velocity)
+    if not columns:
+        raise ValueError("nothing to fit: no flow pairs, no radar-associated points and no radar-object points")
     device, dtype = torch.device(fit.device), _torch_dtype(fit.dtype)
     generator = torch.Generator().manual_seed(fit.seed)
     torch.manual_seed(fit.seed)  # parameter initialisation of the field's hidden layers
     deformation = DeformationField(field_config).to(device=device, dtype=dtype)
-    region = ([flow.x_i, flow.x_j] if use_flow else []) + ([radar.x] if use_radar else [])
+    # Every sample point: x_i and x_j of the flow pairs, x of the others.
+    region = [a for name, arrays in columns.items() for a in arrays[:2 if name == "flow" else 1]]
     deformation.fit_normalization(np.concatenate(region))
-
-    def tensor(array: np.ndarray) -> torch.Tensor:
-        return torch.as_tensor(array, dtype=dtype, device=device)
-
-    if use_flow:
-        f_xi, f_xj, f_ti, f_tj = (tensor(a) for a in (flow.x_i, flow.x_j, flow.t_i, flow.t_j))
-    if use_radar:
-        r_x, r_ti, r_tj, r_dt, r_c, r_v = (tensor(a) for a in (radar.x, radar.t_i, radar.t_j, radar.dt,
-                                                              radar.centre, radar.v_r))
+    tensors = {k: [torch.as_tensor(a, dtype=dtype, device=device) for a in v] for k, v in columns.items()}
     optimizer = torch.optim.Adam(deformation.parameters(), lr=fit.learning_rate)
     gamma = fit.final_learning_rate_ratio ** (1.0 / max(fit.iterations, 1))
     scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
@@ -201,14 +309,13 @@ def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_confi
         steps = tqdm(steps, desc="fit-motion", unit="it")
     for step in steps:
         losses: dict[str, torch.Tensor] = {}
-        if use_flow:
-            index = torch.randint(len(flow), (min(fit.batch_size, len(flow)),), generator=generator).to(device)
-            losses["flow"] = flow_loss(deformation, f_xi[index], f_xj[index], f_ti[index], f_tj[index])
-        if use_radar:
-            index = torch.randint(len(radar), (min(fit.batch_size, len(radar)),), generator=generator).to(device)
-            losses["radar"] = radar_loss(deformation, r_x[index], r_ti[index], r_tj[index], r_dt[index],
-                                         r_c[index], r_v[index])
+        for name, arrays in tensors.items():
+            n = len(arrays[0])
+            index = torch.randint(n, (min(fit.batch_size, n),), generator=generator).to(device)
+            losses[name] = _term_loss(name, deformation, [a[index] for a in arrays], fit)
         total = losses.get("flow", 0.0) + fit.radar_weight * losses.get("radar", 0.0)
+        if "velocity" in losses:
+            total = total + fit.velocity_weight * losses["velocity"]
         if not torch.isfinite(total):
             raise FloatingPointError(f"non-finite loss at iteration {step}: "
                                      f"{ {k: float(v) for k, v in losses.items()} }")
@@ -277,20 +384,22 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
 
 def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None, use_flow: bool = True,
             use_radar: bool = True, recompute_flow: bool = False, evaluate: bool = True,
-            progress: bool = False) -> tuple[DeformationField, dict]:
+            progress: bool = False, use_velocity: bool | None = None) -> tuple[DeformationField, dict]:
     """Fit the field to a scene's prepared data and (with gt/) evaluate it.
 
     ``<prepared>/flow`` is computed with ``config.flow`` when missing (or ``recompute_flow``) and
-    ``use_flow`` is on. Returns the field and a JSON-ready result dict (config, data counts, loss
-    history, timings, and the :func:`evaluate_sceneflow` metrics under ``"sceneflow"``).
+    ``use_flow`` is on. ``use_velocity`` (None: ``config.fit.velocity``) adds ``L_vel``. Returns the
+    field and a JSON-ready result dict (config, data counts, loss history, timings, and the
+    :func:`evaluate_sceneflow` metrics under ``"sceneflow"``).
     """
     config = config or MotionConfig()
     prepared = Path(prepared_dir)
     times = normalized_times(scene)
+    use_velocity = config.fit.velocity if use_velocity is None else use_velocity
     result: dict[str, Any] = {"scene": str(scene.root), "prepared": str(prepared), "use_flow": use_flow,
-                              "use_radar": use_radar, "config": to_dict(config)}
+                              "use_radar": use_radar, "use_velocity": use_velocity, "config": to_dict(config)}
     started = time.perf_counter()
-    flow_samples = radar_samples = None
+    flow_samples = radar_samples = velocity_samples = None
     if use_flow:
         if recompute_flow or not (prepared / "flow").is_dir():
             flow_started = time.perf_counter()
@@ -301,9 +410,13 @@ def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None,
     if use_radar:
         radar_samples, stats = collect_radar_samples(scene, prepared, config.flow, config.fit, times)
         result.update(stats)
+    if use_velocity:
+        velocity_samples, stats = collect_velocity_samples(scene, prepared, config.flow, config.fit, times)
+        result.update(stats)
     data_seconds = time.perf_counter() - started
     fit_started = time.perf_counter()
-    deformation, history = fit_field(flow_samples, radar_samples, config.field, config.fit, progress)
+    deformation, history = fit_field(flow_samples, radar_samples, config.field, config.fit, progress,
+                                     velocity=velocity_samples)
     result["fit_seconds"] = time.perf_counter() - fit_started
     result["data_seconds"] = data_seconds
     result["history"] = history

@@ -1,7 +1,7 @@
 """The training loss of one iteration: its named terms, their weights and their weighted sum.
 
 ``(1 - l_r) L1 + l_r (1 - SSIM) + l_d L_invdepth + l_obj BCE(dyn, mask) [stage 3] + l_sky BCE(alpha,
-not sky) + w_flow L_flow + w_rad L_rad`` (the trainer's module docstring has the stages).
+not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module docstring has the stages).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from radar4dgs.metrics.image import ssim_loss_value
-from radar4dgs.metrics.losses import binary_cross_entropy, flow_loss, inverse_depth_l1, radar_loss
+from radar4dgs.metrics.losses import binary_cross_entropy, flow_loss, inverse_depth_l1, radar_loss, velocity_loss
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.train.data import FrameTargets, MotionTargets
@@ -38,7 +38,8 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
 
 def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
                   generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
-    """``L_flow`` and ``L_rad`` on a random minibatch of the field's supervision."""
+    """``L_flow``, ``L_rad`` and ``L_vel`` (each when it has samples) on a random minibatch of the
+    field's supervision; the draws are made in that order."""
     def draw(n: int) -> Tensor:
         return torch.randint(n, (min(batch, n),), generator=generator)
 
@@ -55,6 +56,12 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
         i = draw(len(r)).numpy()
         losses["radar"] = radar_loss(deformation, tensor(r.x[i]), tensor(r.t_i[i]), tensor(r.t_j[i]),
                                      tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]))
+    if motion.velocity is not None:
+        v = motion.velocity
+        i = draw(len(v)).numpy()
+        losses["velocity"] = velocity_loss(deformation, tensor(v.x[i]), tensor(v.t_i[i]), tensor(v.t_j[i]),
+                                           tensor(v.dt[i]), tensor(v.velocity[i]), tensor(v.covariance[i]),
+                                           motion.velocity_position_std, motion.velocity_huber)
     return losses
 
 
@@ -62,7 +69,8 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     """The weight of each named loss term (the keys are :data:`radar4dgs.model.run.LOSS_TERMS`)."""
     c = config.losses
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
-            "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight}
+            "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
+            "velocity": c.velocity_weight}
 
 
 def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
