@@ -4,7 +4,7 @@ seeds with every method, then the paper's orderings checked on novel-view PSNR*.
     python benchmarks/baselines.py [--work /tmp/radar4dgs-baselines] [--jobs 2]
                                    [--seeds 1 2 3] [--methods M ...] [--out JSON] [--picture PNG]
 
-Runs exactly the README's command (resumable: finished cells are reused), prints the table and
+Runs exactly the command in docs/guide.md (resumable: finished cells are reused), prints the table and
 the orderings, and writes benchmarks/results/baselines.json (the bench's means and cells plus the
 orderings) and docs/images/ablation.png. --seeds and --methods run a subset of the grid (default
 seeds 1-3 and every method), written to --out and --picture instead when given.
@@ -24,7 +24,7 @@ from radar4dgs.io.atomic import atomic_write_json
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "baselines.json"
 PICTURE = ROOT / "docs" / "images" / "ablation.png"
-# The README's budget: the small preset's sizes, fewer iterations and Gaussians, so that 42 runs
+# The guide's budget: the small preset's sizes, fewer iterations and Gaussians, so that 42 runs
 # fit in about 75 minutes on 2 CPU cores.
 SETTINGS = ["--preset", "small", "--iterations", "600", "--set", "init.max_static=30000",
             "densify.max_gaussians=40000", "--no-lpips"]

@@ -28,7 +28,7 @@ class TrainCommand:
     preset: PresetName = "small"
     # Everything the trainer does (filled from --preset, then overridden by options).
     config: TrainConfig = field(default_factory=TrainConfig)
-    # A named method (a baseline or an ablation, see the README's table); it sets its own config
+    # A named method (a baseline or an ablation, see the table in docs/guide.md); it sets its own config
     # fields on top of the preset and the options. Default: the config as given (ours).
     method: Optional[MethodName] = None
     # Continue the run in --out from its last checkpoint.

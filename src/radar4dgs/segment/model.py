@@ -13,7 +13,7 @@ radar point (the anchor):
 The attention is LoFTR's linear attention (Katharopoulos et al. 2020, feature map elu(x)+1),
 written here from the formulas; LoFTR's code is not a dependency.
 
-CPU choices (documented in the README and the weights card): the patch is resized to a fixed
+CPU choices (documented in docs/guide.md and the weights card): the patch is resized to a fixed
 network input (``input_size``, 48 by default: 43 px patches at 320×180); the ResNet is
 truncated after layer3 (layer4 would work on a 2×2 grid at that size) and may be narrowed with
 ``backbone_width`` (64 = torchvision's width, the only one that accepts ImageNet weights).

@@ -19,7 +19,7 @@ class FitConfig:
     # line-of-sight motion far better than depth-lifted flow does, so it should win that component:
     # on synthetic small seed 1, dynamic EPE 0.197 m at 0.05 and 0.161 m at 0.5 (pixels only); with
     # the radar returns as points too (seeds 1 / 4): 0.168 / 0.191 m at 0.5, 0.144 / 0.174 at 1,
-    # 0.146 / 0.188 at 2 (chosen on those two benchmark seeds; held-out seeds 6-8 in the README).
+    # 0.146 / 0.188 at 2 (chosen on those two benchmark seeds; held-out seeds 6-8 in docs/guide.md).
     # A 5 m gate instead of 2 m: 0.151 / 0.184 at 1.
     radar_weight: float = 1.0
     # Association gate (m): a point takes the Doppler of its nearest dynamic radar point only if
