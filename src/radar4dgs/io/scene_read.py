@@ -41,7 +41,7 @@ def _matrix(value: Any, shape: tuple[int, int], where: str, path: Path) -> np.nd
     return matrix
 
 
-def _rigid(value: Any, where: str, path: Path) -> np.ndarray:
+def rigid_matrix(value: Any, where: str, path: Path) -> np.ndarray:
     matrix = _matrix(value, (4, 4), where, path)
     rotation = matrix[:3, :3]
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
@@ -77,10 +77,10 @@ def _parse_frame(entry: Any, index: int, path: Path) -> Frame:
     if not isinstance(name, str) or not name or "/" in name or "\\" in name:
         raise SceneError(path, f"{where}name must be a non-empty file stem, got {name!r}")
     timestamp = _number(_require(entry, "timestamp", where, path), f"{where}timestamp", path)
-    ego_to_world = _rigid(_require(entry, "ego_to_world", where, path), f"{where}ego_to_world", path)
+    ego_to_world = rigid_matrix(_require(entry, "ego_to_world", where, path), f"{where}ego_to_world", path)
     radar_timestamp = _number(entry.get("radar_timestamp", timestamp), f"{where}radar_timestamp", path)
     radar_pose = entry.get("radar_ego_to_world")
-    radar_ego_to_world = ego_to_world if radar_pose is None else _rigid(
+    radar_ego_to_world = ego_to_world if radar_pose is None else rigid_matrix(
         radar_pose, f"{where}radar_ego_to_world", path)
     velocity = entry.get("ego_velocity")
     if velocity is not None:
@@ -134,7 +134,7 @@ def _parse_camera(meta: Mapping[str, Any], meta_path: Path) -> Camera:
     K = _matrix(_require(cam, "K", "camera.", meta_path), (3, 3), "camera.K", meta_path)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
         raise SceneError(meta_path, "camera.K must have positive focal lengths and last row [0, 0, 1]")
-    return Camera(width, height, K, _rigid(_require(cam, "cam_to_ego", "camera.", meta_path),
+    return Camera(width, height, K, rigid_matrix(_require(cam, "cam_to_ego", "camera.", meta_path),
                                            "camera.cam_to_ego", meta_path))
 
 
@@ -149,7 +149,7 @@ def _parse_radar(meta: Mapping[str, Any], meta_path: Path) -> RadarSpec:
         raise SceneError(meta_path, f"radar.fields lacks required columns {missing}")
     if len(set(fields)) != len(fields):
         raise SceneError(meta_path, f"radar.fields has duplicate names {fields}")
-    return RadarSpec(_rigid(_require(rad, "radar_to_ego", "radar.", meta_path), "radar.radar_to_ego",
+    return RadarSpec(rigid_matrix(_require(rad, "radar_to_ego", "radar.", meta_path), "radar.radar_to_ego",
                             meta_path), tuple(fields))
 
 

@@ -79,7 +79,7 @@ from radar4dgs.datasets.convert.common import (
     write_scene,
 )
 from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
-from radar4dgs.io.scene_read import _rigid
+from radar4dgs.io.scene_read import rigid_matrix
 
 CAMERA = "camera_front"
 RADAR = "radar_front"
@@ -123,7 +123,7 @@ def _matrix4(value: Any, path: Path, where: str) -> np.ndarray:
         matrix = np.asarray(value, dtype=np.float64).reshape(4, 4)
     except (TypeError, ValueError):
         raise SceneError(path, f"{where} is not 16 numbers (row-major 4x4)") from None
-    return _rigid(matrix, where, path)
+    return rigid_matrix(matrix, where, path)
 
 
 def _intrinsics(value: Any, path: Path, where: str) -> np.ndarray:
