@@ -3,16 +3,17 @@ dynamic scene-flow error on synthetic scenes for flow-only, radar-only, both, an
 objects' velocity term (both_velocity).
 
     python benchmarks/motion.py [--seeds 1 2 3 4 5] [--preset small] [--work /tmp/radar4dgs-motion-bench] [--oracle]
-                                [--traffic calm|realistic] [--fps 10]
+                                [--traffic calm|realistic|rush] [--fps 10]
 
 Prints a table and writes benchmarks/results/motion.json (rewritten after every seed, so an
-interrupted run keeps the seeds it finished; motion-realistic.json for --traffic realistic).
+interrupted run keeps the seeds it finished; motion-<traffic>.json for --traffic realistic or rush).
 Every seed's entry holds the image motion of its dynamic pixels (p50/p90/p99 px per frame, from
 gt/flow) beside its errors, and the radar objects' velocity error (objects with >= 3 returns).
 
 Seeds, fixed before any tuning (issue 21): calm traffic 1-5 (6-8 held out); realistic traffic at
-10 Hz: 101-105 to tune on, 106-110 only to report; realistic traffic at 5 Hz: 111-112, report only.
-The fit uses only prepared data: the radar front
+10 Hz: 101-105 to tune on, 106-110 only to report; realistic traffic at 5 Hz: 111-112, report only;
+rush traffic at 10 Hz (fixed before any scene of that profile was made): 201-203 to tune on,
+204-208 only to report. The fit uses only prepared data: the radar front
 end, radar-scaled depth and the segmentation network's masks (`radar4dgs prepare`). With --oracle,
 depth and dynamic masks come from the scene's gt/ instead (an upper bound; written to
 motion-oracle.json unless --out is given).
@@ -101,7 +102,7 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-motion-bench"))
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--oracle", action="store_true", help="gt depth and masks instead of the prepared ones")
-    parser.add_argument("--traffic", choices=("calm", "realistic"), default="calm")
+    parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="calm")
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     args = parser.parse_args()
     if args.out is None:

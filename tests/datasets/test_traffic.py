@@ -312,3 +312,18 @@ def test_cli_traffic_profile_and_explicit_options(tmp_path):
     assert {o["class"] for o in movers(scene)} >= {"car", "pedestrian"}
     with pytest.raises(ValueError, match="unknown traffic profile"):
         traffic_profile("rush-hour")
+
+
+def test_rush_profile_passes_more_and_faster_cars_than_realistic():
+    """The rush profile (hard-traffic benchmark seeds 201-208): over fixed seeds, at least two
+    oncoming cars at 14-25 m/s per scene and a lead car only in some scenes."""
+    leads = 0
+    for seed in range(6):
+        config = preset(SynthConfig, "small", seed=seed, traffic=traffic_profile("rush"))
+        roles = [m for m in build_world(config).movers]
+        oncoming = [m for m in roles if m.role == "oncoming"]
+        assert 2 <= len(oncoming) <= 3
+        assert all(14.0 <= m.speed(0.0) <= 25.0 for m in oncoming)
+        assert any(m.role == "cyclist" or m.category == "cyclist" for m in roles)
+        leads += any(m.role == "lead" for m in roles)
+    assert 0 < leads < 6

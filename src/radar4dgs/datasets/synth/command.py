@@ -21,9 +21,9 @@ class SynthCommand:
     preset: PresetName = "small"  # size preset: tiny (tests), small (CPU default), paper (1920x1080)
     seed: int = 0  # layout, speeds, colours and textures
     # moving objects: calm (a few cars, a few pixels per frame) or realistic (lead car, cut-in, oncoming and
-    # crossing cars passing close, pedestrians, cyclists: tens to hundreds of pixels per frame); explicit
-    # --scene.traffic.* options win over the profile
-    traffic: Literal["calm", "realistic"] = "calm"
+    # crossing cars passing close, pedestrians, cyclists: tens to hundreds of pixels per frame) or rush
+    # (realistic with more and faster oncoming and crossing cars); explicit --scene.traffic.* options win
+    traffic: Literal["calm", "realistic", "rush"] = "calm"
     overwrite: bool = False  # replace OUT if it exists
     scene: SynthConfig = field(default_factory=SynthConfig)  # every generator option; defaults from --preset
 
