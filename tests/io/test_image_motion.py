@@ -6,20 +6,16 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from _motion_scene import CV_TO_EGO, F, K, translation, write_scene
 from radar4dgs.io import read_scene
-from radar4dgs.io.image_motion import dynamic_pixel_motion, project_motion, scene_dynamic_pixel_motion
+from radar4dgs.io.image_motion import (
+    dynamic_pixel_motion,
+    dynamic_pixel_motion_map,
+    project_motion,
+    scene_dynamic_pixel_motion,
+)
 from radar4dgs.io.scene_types import Camera, Frame, RadarSpec
 from radar4dgs.io.scene_write import SceneWriter
-
-F = 100.0  # focal length (px)
-K = np.array([[F, 0.0, 40.0], [0.0, F, 30.0], [0.0, 0.0, 1.0]])
-CV_TO_EGO = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.5], [0, 0, 0, 1.0]])  # camera looks along ego x
-
-
-def translation(x: float, y: float = 0.0, z: float = 0.0) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, 3] = (x, y, z)
-    return matrix
 
 
 @settings(max_examples=50, deadline=None)
@@ -52,24 +48,6 @@ def test_points_behind_the_next_camera_or_outside_its_image_are_left_out():
     assert np.allclose(project_motion(K, np.eye(4), np.eye(4), uv, depth, flow, inside=(80, 60)), [0.0])
 
 
-def write_scene(out, frames=3, speed=1.0, flow_y=-0.2, depth=10.0):
-    """A scene whose ego drives along x at ``speed`` m per frame, seeing a wall at ``depth`` m with
-    a dynamic 4x4 block that moves ``flow_y`` m sideways (world y) per frame."""
-    camera = Camera(80, 60, K, CV_TO_EGO)
-    mask = np.zeros((60, 80), bool)
-    mask[28:32, 38:42] = True
-    flow = np.zeros((60, 80, 3), np.float32)
-    flow[mask] = (0.0, flow_y, 0.0)
-    with SceneWriter(out) as writer:
-        for i in range(frames):
-            frame = Frame(f"{i:06d}", 0.1 * i, translation(speed * i), 0.1 * i, translation(speed * i))
-            writer.add_frame(frame, np.zeros((60, 80, 3), np.uint8), np.zeros((1, 4), np.float32),
-                             gt_depth=np.full((60, 80), depth - speed * i, np.float32), gt_dynamic_mask=mask,
-                             gt_flow=flow)
-        writer.finish("motion", camera, RadarSpec(np.eye(4), ("x", "y", "z", "v_r")))
-    return read_scene(out)
-
-
 def test_dynamic_pixel_motion_of_a_scene(tmp_path):
     scene = write_scene(tmp_path / "scene")
     v, u = np.nonzero(np.pad(np.ones((4, 4), bool), ((28, 28), (38, 38))))
@@ -80,6 +58,10 @@ def test_dynamic_pixel_motion_of_a_scene(tmp_path):
         x_cam, y_cam = (u - K[0, 2]) / F * z + 0.2, (v - K[1, 2]) / F * z
         expected = np.hypot(F * x_cam / (z - 1) + K[0, 2] - u, F * y_cam / (z - 1) + K[1, 2] - v)
         assert np.allclose(np.sort(dynamic_pixel_motion(scene, i)), np.sort(expected), atol=1e-4)
+        motion_map = dynamic_pixel_motion_map(scene, i)  # each value at its own pixel
+        assert np.allclose(motion_map[v, u], expected, atol=1e-4)
+        assert np.isnan(motion_map).sum() == 60 * 80 - 16
+    assert np.isnan(dynamic_pixel_motion_map(scene, 2)).all()
     assert dynamic_pixel_motion(scene, 2).shape == (0,)  # the last frame has no next one
     assert scene_dynamic_pixel_motion(scene).shape == (32,)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from radar4dgs.motion.association import load_radar_dynamics
@@ -40,3 +41,25 @@ def test_missing_prepared_inputs_name_the_folder_and_the_option(motion_scene, tm
     with pytest.raises(FileNotFoundError, match=r"radar.*radar_source='oracle'"):
         load_radar_dynamics(motion_scene, 0, "prepared", tmp_path)
     assert not (tmp_path / "flow").exists()
+
+
+@pytest.mark.parametrize(("flow_y", "out_of_view"), [(-0.2, 0.0), (-20.0, 1.0)])
+def test_2d_flow_error_counts_only_pixels_that_stay_in_view(tmp_path, monkeypatch, flow_y, out_of_view):
+    """A block moving 0.2 m sideways stays in view: a stored flow 3 px off scores 3 px. Moving
+    20 m it leaves the 80 px image (a gt 'flow' of ~200 px): it is counted as out of view, not scored."""
+    import radar4dgs.motion.metrics as metrics_module
+    from _motion_scene import write_scene
+    from radar4dgs.motion.metrics import gt_flow_2d
+
+    scene = write_scene(tmp_path / "scene", frames=2, flow_y=flow_y)
+    gt2d, _ = gt_flow_2d(scene, 0)
+    stored = gt2d + np.array([3.0, 0.0])
+    pair = {"index_i": 0, "index_j": 1, "flow": stored, "pixels": np.zeros((0, 2)),
+            "points_i": np.zeros((0, 3)), "points_j": np.zeros((0, 3))}
+    monkeypatch.setattr(metrics_module, "load_flow_pairs", lambda _: [pair])
+    metrics = motion_frontend_metrics(scene, tmp_path)
+    assert metrics["flow2d_out_of_view"] == out_of_view
+    if out_of_view:
+        assert metrics["flow2d_epe_dynamic"] is None
+    else:
+        assert np.isclose(metrics["flow2d_epe_dynamic"], 3.0) and np.isclose(metrics["flow2d_epe_dynamic_p90"], 3.0)

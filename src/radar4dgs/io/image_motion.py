@@ -17,7 +17,8 @@ MIN_DEPTH = 0.1  # a moved point closer than this to the next camera's plane doe
 
 
 def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: np.ndarray, uv: np.ndarray,
-                   depth: np.ndarray, flow: np.ndarray, inside: tuple[int, int] | None) -> np.ndarray:
+                   depth: np.ndarray, flow: np.ndarray, inside: tuple[int, int] | None,
+                   with_keep: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """(K,) image displacement (px) of pixels moved by their world flow into the next camera.
 
     Args:
@@ -27,7 +28,8 @@ def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: n
         inside: (width, height) to keep only pixels that land inside the next image; None: keep
             every pixel in front of the next camera.
     Returns:
-        (K,) float64, K <= N: the displacement of the kept pixels, in input order.
+        (K,) float64, K <= N: the displacement of the kept pixels, in input order; with
+        ``with_keep``, first the (N,) bool of the kept pixels.
     """
     rays = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))])
     world = (rays * depth[:, None]) @ cam_to_world[:3, :3].T + cam_to_world[:3, 3] + flow
@@ -40,32 +42,44 @@ def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: n
         width, height = inside
         keep = keep & (moved[:, 0] >= -0.5) & (moved[:, 0] <= width - 0.5) & (moved[:, 1] >= -0.5) & (
             moved[:, 1] <= height - 0.5)
-    return np.linalg.norm(moved[keep] - uv[keep], axis=1)
+    displacement = np.linalg.norm(moved[keep] - uv[keep], axis=1)
+    return (keep, displacement) if with_keep else displacement
 
 
-def dynamic_pixel_motion(scene: Scene, index: int, inside_only: bool = True) -> np.ndarray:
-    """(K,) image displacement (px) from frame ``index`` to ``index + 1`` of the pixels of frame
-    ``index`` that ``gt/dynamic_mask`` marks, from ``gt/depth`` and ``gt/flow``.
+def dynamic_pixel_motion_map(scene: Scene, index: int, inside_only: bool = True) -> np.ndarray:
+    """(H, W) float64 image motion (px) from frame ``index`` to ``index + 1`` of the pixels that
+    ``gt/dynamic_mask`` marks, from ``gt/depth`` and ``gt/flow``; NaN elsewhere (static pixels, no
+    depth, no correspondence) and on the whole last frame, which has no next frame.
 
     ``inside_only``: keep only pixels whose point lands inside the next image (an image
     correspondence exists); otherwise every pixel whose point stays in front of the next camera.
-    The last frame has no next frame: an empty array. Raises the scene's error when a gt folder
-    is missing.
+    Raises the scene's error when a gt folder is missing.
     """
+    camera = scene.camera
+    motion = np.full((camera.height, camera.width), np.nan)
     if index >= len(scene) - 1:
-        return np.zeros(0)
+        return motion
     mask = scene.load_optional("gt/dynamic_mask", index)
     depth = scene.load_optional("gt/depth", index).astype(np.float64)
     mask = mask & np.isfinite(depth)
     if not mask.any():
-        return np.zeros(0)
+        return motion
     flow = scene.load_optional("gt/flow", index).astype(np.float64)
     v, u = np.nonzero(mask)
-    camera = scene.camera
     cam_to_world = np.linalg.inv(scene.world_to_camera(index))
     inside = (camera.width, camera.height) if inside_only else None
-    return project_motion(camera.K, cam_to_world, scene.world_to_camera(index + 1),
-                          np.column_stack([u, v]).astype(np.float64), depth[v, u], flow[v, u], inside)
+    keep, displacement = project_motion(camera.K, cam_to_world, scene.world_to_camera(index + 1),
+                                        np.column_stack([u, v]).astype(np.float64), depth[v, u], flow[v, u],
+                                        inside, with_keep=True)
+    motion[v[keep], u[keep]] = displacement
+    return motion
+
+
+def dynamic_pixel_motion(scene: Scene, index: int, inside_only: bool = True) -> np.ndarray:
+    """(K,) the finite values of :func:`dynamic_pixel_motion_map`, in row-major pixel order; the
+    last frame gives an empty array."""
+    motion = dynamic_pixel_motion_map(scene, index, inside_only)
+    return motion[np.isfinite(motion)]
 
 
 def scene_dynamic_pixel_motion(scene: Scene, inside_only: bool = True) -> np.ndarray:

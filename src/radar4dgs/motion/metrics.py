@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from radar4dgs.io.image_motion import MIN_DEPTH
 from radar4dgs.motion.flow import load_flow_pairs
 from radar4dgs.motion.lift import backproject
 from radar4dgs.motion.sampling import pixel_grid
@@ -37,7 +38,7 @@ def gt_flow_2d(scene, index: int, next_index: int | None = None) -> tuple[np.nda
     cam = moved @ w2c[:3, :3].T + w2c[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = (cam @ np.asarray(scene.camera.K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
-    valid = finite & (cam[:, 2] > 1e-6) & np.isfinite(uv).all(axis=1)
+    valid = finite & (cam[:, 2] > MIN_DEPTH) & np.isfinite(uv).all(axis=1)
     flow = np.where(valid[:, None], uv - grid, 0.0)
     return flow.reshape(height, width, 2), valid.reshape(height, width)
 
@@ -48,8 +49,14 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
     Only pairs of adjacent frames (``index_j = index_i + 1``) are scored, since gt/flow is a
     one-frame displacement.
 
-    - ``flow2d_epe_dynamic`` (px): mean over all gt-dynamic pixels with finite gt depth, pooled
-      over pairs, of |stored 2D flow - gt 2D flow| (gt 2D flow from :func:`gt_flow_2d`).
+    - ``flow2d_epe_dynamic`` (px): mean over the gt-dynamic pixels with finite gt depth whose
+      point lands inside the next image, pooled over pairs, of |stored 2D flow - gt 2D flow| (gt 2D
+      flow from :func:`gt_flow_2d`). Pixels whose point leaves the image (an oncoming car passing
+      the camera) have no correspondence to find and a gt "flow" of up to thousands of pixels that
+      would dominate any mean; they are counted in ``flow2d_out_of_view``, as KITTI and the image
+      motion statistics (``radar4dgs.io.image_motion``) leave them out.
+    - ``flow2d_epe_dynamic_p50`` / ``_p90`` (px): median and 90th percentile of the same errors.
+    - ``flow2d_out_of_view``: fraction of those gt-dynamic pixels left out for leaving the image.
     - ``sceneflow_epe_dynamic`` (m): mean over the stored lifted pairs whose pixel is gt-dynamic
       of |(points_j - points_i) - gt/flow[pixel]|.
     - ``sceneflow_coverage``: fraction of gt-dynamic pixels (finite depth) that got a lifted pair.
@@ -59,12 +66,17 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
     if max_pairs is not None:
         pairs = pairs[:max_pairs]
     errors_2d, errors_3d = [], []
-    dynamic_total, covered = 0, 0
+    dynamic_total, covered, out_of_view = 0, 0, 0
     for pair in pairs:
         i = int(pair["index_i"])
         gt2d, valid = gt_flow_2d(scene, i)
         dynamic = scene.load_optional("gt/dynamic_mask", i) & valid
-        errors_2d.append(np.linalg.norm(pair["flow"][dynamic] - gt2d[dynamic], axis=1))
+        landing = pixel_grid(*valid.shape) + gt2d
+        height, width = valid.shape
+        in_view = dynamic & (landing[..., 0] >= -0.5) & (landing[..., 0] <= width - 0.5) & (
+            landing[..., 1] >= -0.5) & (landing[..., 1] <= height - 0.5)
+        out_of_view += int((dynamic & ~in_view).sum())
+        errors_2d.append(np.linalg.norm(pair["flow"][in_view] - gt2d[in_view], axis=1))
         motion = scene.load_optional("gt/flow", i)
         cols = pair["pixels"][:, 0].astype(np.int64)
         rows = pair["pixels"][:, 1].astype(np.int64)
@@ -75,7 +87,11 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
         covered += int(keep.sum())
     e2 = np.concatenate(errors_2d) if errors_2d else np.zeros(0)
     e3 = np.concatenate(errors_3d) if errors_3d else np.zeros(0)
+    p50, p90 = np.percentile(e2, [50, 90]) if len(e2) else (None, None)
     return {"flow2d_epe_dynamic": float(e2.mean()) if len(e2) else None,
+            "flow2d_epe_dynamic_p50": None if p50 is None else float(p50),
+            "flow2d_epe_dynamic_p90": None if p90 is None else float(p90),
+            "flow2d_out_of_view": out_of_view / dynamic_total if dynamic_total else None,
             "sceneflow_epe_dynamic": float(e3.mean()) if len(e3) else None,
             "sceneflow_coverage": covered / dynamic_total if dynamic_total else None,
             "flow2d_pairs": len(pairs)}
