@@ -85,6 +85,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", nargs="*", default=[], help="extra TrainConfig fields of every cell (KEY=VALUE)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-traffic-bench"))
+    parser.add_argument("--grid", default="grid", help="the grid's folder under --work (one per --set variant; "
+                                                        "the scenes under --work/scenes are shared)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     out = args.out or RESULTS / f"traffic-{args.traffic}.json"
@@ -94,7 +96,7 @@ def main() -> None:
               "scenes": {}}
     for seed in args.seeds:
         scene, motion = prepare_scene(seed, args.traffic, args.fps, args.preset, args.work)
-        grid = args.work / "grid"
+        grid = args.work / args.grid
         subprocess.run([sys.executable, "-m", "radar4dgs.cli", "bench", "--scenes", str(scene), "--methods",
                         *args.methods, "--out", str(grid), "--preset", args.preset, "--iterations",
                         str(args.iterations), "--jobs", str(args.jobs), "--no-lpips", "--quiet",

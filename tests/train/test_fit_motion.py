@@ -52,6 +52,11 @@ def test_fit_beats_a_field_that_does_not_move(motion_scene, motion_prepared):
     field, result = run_fit(motion_scene, motion_prepared, config, use_flow=True, use_radar=True)
     metrics = result["sceneflow"]
     assert metrics["points"] > 0 and metrics["epe"] < 0.8 * metrics["zero_motion_epe"]
+    # The image-motion bins partition the evaluated points and average back to the pooled error.
+    bins = [b for b in metrics["epe_by_image_motion"] if b["points"]]
+    assert sum(b["points"] for b in bins) == metrics["points"]
+    assert np.isclose(sum(b["epe"] * b["points"] for b in bins) / metrics["points"], metrics["epe"])
+    assert metrics["epe_by_image_motion"][-1]["high"] is None
     assert result["history"][-1]["total"] < result["history"][0]["total"]
     path = save_field(field, motion_prepared / "field.pt")
     again = load_field(path)

@@ -18,13 +18,10 @@ from typing import Sequence
 
 import numpy as np
 
-from radar4dgs.io.image_motion import dynamic_pixel_motion_map
+from radar4dgs.io.image_motion import IMAGE_MOTION_EDGES, dynamic_pixel_motion_map, image_motion_edges
 from radar4dgs.io.scene import read_scene
 
-# Bin edges in px per frame at a 320 px wide image (scaled with the image width): still to barely
-# moving, a lead car closing in, a car crossing a lane's width, a car passing close.
-DEFAULT_EDGES = (0.0, 2.0, 10.0, 30.0, math.inf)
-REFERENCE_WIDTH = 320
+DEFAULT_EDGES = IMAGE_MOTION_EDGES
 RENDERS_DIR = "renders"  # as evaluate.reconstruction writes them: renders/{recon,nvs}/<frame>.png
 
 
@@ -77,7 +74,7 @@ def run_psnr_by_image_motion(run_dir: str | Path, edges: Sequence[float] = DEFAU
     scene = read_scene(json.loads((root / "run.json").read_text())["scene"])
     if not scene.has("gt/flow"):
         raise ValueError(f"{scene.root}: no gt/flow, so no image motion to bin by")
-    scaled = [e * scene.camera.width / REFERENCE_WIDTH for e in edges]
+    scaled = image_motion_edges(scene.camera.width, tuple(edges))
     test = set(scene.test_indices)
     totals = {split: (np.zeros(len(edges) - 1), np.zeros(len(edges) - 1, dtype=np.int64)) for split in ("recon", "nvs")}
     for index in range(len(scene) - 1):  # the last frame has no next one, so no motion

@@ -9,11 +9,23 @@ it. Real traffic at 10 Hz moves dynamic pixels by tens to hundreds of pixels per
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from radar4dgs.io.scene_types import Scene
 
 MIN_DEPTH = 0.1  # a moved point closer than this to the next camera's plane does not project (m)
+# Bins of image motion (px per frame at a 320 px wide image) that errors are reported in: still to
+# barely moving, a lead car closing in, a car crossing a lane's width, a car passing close.
+# Scaled with the image width (:func:`image_motion_edges`), so a bin means the same motion at any size.
+IMAGE_MOTION_EDGES = (0.0, 2.0, 10.0, 30.0, math.inf)
+IMAGE_MOTION_REFERENCE_WIDTH = 320
+
+
+def image_motion_edges(width: int, edges: tuple[float, ...] = IMAGE_MOTION_EDGES) -> list[float]:
+    """``edges`` (px per frame at a 320 px wide image) for an image ``width`` px wide."""
+    return [e * width / IMAGE_MOTION_REFERENCE_WIDTH for e in edges]
 
 
 def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: np.ndarray, uv: np.ndarray,

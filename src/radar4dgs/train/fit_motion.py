@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from radar4dgs.config import to_dict
+from radar4dgs.io.image_motion import dynamic_pixel_motion_map, image_motion_edges
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.metrics.losses import flow_loss, radar_loss, velocity_loss
 from radar4dgs.model.field import DeformationField, FieldConfig
@@ -336,7 +337,9 @@ def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, velocity: V
 def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, chunk: int = 65536) -> dict:
     """End-point error of the field's scene flow on every gt-dynamic pixel of every adjacent pair.
 
-    Returns ``epe`` (m, mean over pixels of all pairs), ``epe_train_pairs`` (both frames are
+    Returns ``epe`` (m, mean over pixels of all pairs), ``epe_by_image_motion`` (the same per bin of
+    the pixels' gt image motion, ``radar4dgs.io.image_motion.image_motion_edges``),
+    ``epe_train_pairs`` (both frames are
     training frames), ``epe_held_out_pairs`` (a test frame involved), ``zero_motion_epe`` (mean
     |gt flow|, the error of a field that does not move), ``roundtrip_max`` (m, max
     |D^-1(D(x)) - x| on the evaluated points), ``points`` and ``pairs``.
@@ -344,7 +347,7 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
     parameter = next(deformation.parameters())
     device, dtype = parameter.device, parameter.dtype
     test = set(scene.test_indices)
-    errors, zero, held_out, roundtrip = [], [], [], 0.0
+    errors, zero, held_out, image_motion, roundtrip = [], [], [], [], 0.0
     for i in range(len(scene) - 1):
         depth = scene.load_optional("gt/depth", i).astype(np.float64)
         mask = scene.load_optional("gt/dynamic_mask", i) & np.isfinite(depth) & (depth > 0)
@@ -367,11 +370,18 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
         errors.append(error)
         zero.append(np.linalg.norm(motion, axis=1))
         held_out.append(np.full(len(error), i in test or (i + 1) in test))
+        image_motion.append(dynamic_pixel_motion_map(scene, i, inside_only=False)[rows, cols])
     if not errors:
         return {"epe": None, "epe_train_pairs": None, "epe_held_out_pairs": None, "zero_motion_epe": None,
-                "roundtrip_max": None, "points": 0, "pairs": 0}
+                "roundtrip_max": None, "points": 0, "pairs": 0, "epe_by_image_motion": []}
     e, z, h = np.concatenate(errors), np.concatenate(zero), np.concatenate(held_out)
-    return {"epe": float(e.mean()),
+    # A point that passes behind the next camera has no image motion (NaN): the fastest bin.
+    edges = image_motion_edges(scene.camera.width)
+    bins = np.digitize(np.nan_to_num(np.concatenate(image_motion), nan=1e9), edges) - 1
+    by_motion = [{"low": lo, "high": None if np.isinf(hi) else hi, "points": int((bins == b).sum()),
+                  "epe": float(e[bins == b].mean()) if (bins == b).any() else None}
+                 for b, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True))]
+    return {"epe": float(e.mean()), "epe_by_image_motion": by_motion,
             "epe_train_pairs": float(e[~h].mean()) if (~h).any() else None,
             "epe_held_out_pairs": float(e[h].mean()) if h.any() else None,
             "zero_motion_epe": float(z.mean()), "roundtrip_max": roundtrip,
