@@ -6,14 +6,21 @@ defaults from ``--preset NAME`` first, so ``--preset small --scene.noise.range-s
 one value of the ``small`` preset. Modules are imported only for the command that runs, and a
 command module imports its heavy dependencies (torch, OpenCV) inside ``run()``, so ``radar4dgs
 --help`` and ``radar4dgs COMMAND --help`` answer without importing torch.
+
+A user error (a missing or malformed file, an existing output, a bad value: ``ValueError`` and
+``OSError`` subclasses such as :class:`radar4dgs.io.SceneError`) ends the command with one line
+``radar4dgs COMMAND: <file>: <problem>`` on stderr and exit status 1; ``--debug`` (anywhere on the
+line) shows the traceback instead. Warnings print as one line each, without the source line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import sys
-from typing import Sequence
+import warnings
+from typing import Iterator, Sequence
 
 import tyro
 
@@ -71,12 +78,44 @@ def class_summary(cls: type) -> str:
     return doc.splitlines()[0] if doc else ""
 
 
-def _usage() -> str:
-    lines = ["usage: radar4dgs COMMAND [OPTIONS]   (radar4dgs COMMAND --help for its options)", "",
-             "commands:"]
+def _usage(names: Sequence[str] | None = None) -> str:
+    lines = ["usage: radar4dgs COMMAND [OPTIONS]   (radar4dgs COMMAND --help for its options;"
+             " --debug shows a traceback on errors)", "", "commands:"]
     for name, (_, _, summary) in COMMANDS.items():
-        lines.append(f"  {name:<18}{summary}")
+        if names is None or name in names:
+            lines.append(f"  {name:<18}{summary}")
     return "\n".join(lines)
+
+
+def _group(word: str) -> list[str]:
+    """The two-word commands that start with ``word`` ("convert" -> convert aimotive, ...)."""
+    return [name for name in COMMANDS if " " in name and name.split(" ", 1)[0] == word]
+
+
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    """One line per warning, never the source line: the message, and the category of one that does
+    not come from this package (a library's DeprecationWarning, say)."""
+    ours = category is UserWarning or category.__module__.startswith("radar4dgs.")
+    kind = "" if ours else f" ({category.__name__})"
+    return f"radar4dgs: warning: {message}{kind}\n"
+
+
+@contextlib.contextmanager
+def _one_line_warnings() -> Iterator[None]:
+    """Warnings shown while a command runs print as one line; the previous format comes back after
+    (the library itself never touches the warnings machinery)."""
+    previous = warnings.formatwarning
+    warnings.formatwarning = _format_warning
+    try:
+        yield
+    finally:
+        warnings.formatwarning = previous
+
+
+# What a user can cause (a missing or malformed file, an output that exists, a bad value): one
+# line, no traceback. Anything else is a bug and keeps its traceback.
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError,
+                                                IsADirectoryError, PermissionError)
 
 
 def _preset_from_args(args: Sequence[str]) -> str | None:
@@ -122,16 +161,39 @@ def build_command(name: str, args: Sequence[str]):
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    args = [a for a in args if a != "--debug"]
     if not args or args[0] in ("-h", "--help", "help"):
         print(_usage())
         return 0
     two_words = " ".join(args[:2])
     name, rest = (two_words, args[2:]) if two_words in COMMANDS else (args[0], args[1:])
     if name not in COMMANDS:
+        group = _group(args[0])
+        if group:  # "radar4dgs convert" alone, or with an unknown dataset
+            asked = " ".join(args[:2]) if len(args) > 1 and not args[1].startswith("-") else None
+            choices = ", ".join(n.split(" ", 1)[1] for n in group)
+            head = (f"radar4dgs {args[0]}: no command {asked!r}; " if asked
+                    else f"radar4dgs {args[0]}: ") + f"choose one of {choices}"
+            help_asked = not asked and any(a in ("-h", "--help") for a in args[1:])
+            print(f"{head}\n\n{_usage(group)}", file=sys.stdout if help_asked else sys.stderr)
+            return 0 if help_asked else 2
         print(f"radar4dgs: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    command = build_command(name, rest)
-    result = command.run()
+    with _one_line_warnings():
+        try:
+            command = build_command(name, rest)
+            result = command.run()
+        except USER_ERRORS as exc:
+            if debug:
+                raise
+            print(f"radar4dgs {name}: {exc}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            if debug:
+                raise
+            print(f"radar4dgs {name}: interrupted", file=sys.stderr)
+            return 130
     return int(result or 0)
 
 

@@ -1,4 +1,5 @@
-"""`radar4dgs demo` on the tiny preset: every built stage runs and its numbers meet the ground truth."""
+"""`radar4dgs demo` on the tiny preset: every built stage runs and its numbers meet the ground truth;
+a demo folder is reused only for the same request, never reported under another's name."""
 
 from __future__ import annotations
 
@@ -29,3 +30,32 @@ def test_demo_tiny(tmp_path, capsys):
     again = capsys.readouterr().out
     assert "radar: skipped, depth: skipped, masks: skipped, flow: skipped" in again
     assert "reusing the finished run" in again
+
+    # What made it is recorded, and shown.
+    assert json.loads((out / "demo.json").read_text())["preset"] == "tiny"
+    provenance = json.loads((out / "run" / "provenance.json").read_text())
+    assert provenance["preset"] == "tiny" and provenance["method"] == "ours"
+    assert metrics["run"]["preset"] == "tiny" and metrics["run"]["config_hash"]
+    assert "<td>preset</td><td>tiny</td>" in (out / "run" / "report.html").read_text()
+    assert "preset 'tiny', seed 2" in again
+
+    # Another seed, or another preset, into the same folder: refused in one line saying what
+    # differs, before any step, so no number of seed 2 is printed under seed 3's name.
+    assert main(["demo", "--preset", "tiny", "--seed", "3", "--out", str(out)]) == 1
+    refused = capsys.readouterr()
+    assert refused.err.count("\n") == 1
+    assert "preset 'tiny', seed 2, not preset 'tiny', seed 3" in refused.err and "--fresh" in refused.err
+    assert "PSNR" not in refused.out and "[1]" not in refused.out
+    assert main(["demo", "--preset", "small", "--seed", "2", "--out", str(out)]) == 1
+    assert "not preset 'small', seed 2" in capsys.readouterr().err
+    # A folder from before demo.json existed: the scene itself says what made it.
+    (out / "demo.json").unlink()
+    assert main(["demo", "--preset", "small", "--seed", "2", "--out", str(out)]) == 1
+    assert "scene was made with preset 'tiny', seed 2, not preset 'small', seed 2" in capsys.readouterr().err
+    # A run trained with another config than the preset's is not reused either.
+    config = json.loads((out / "run" / "config.json").read_text())
+    config["config"]["optim"]["iterations"] += 1
+    (out / "run" / "config.json").write_text(json.dumps(config))
+    assert main(["demo", "--preset", "tiny", "--seed", "2", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "run/config.json: the run was trained with another config (optim.iterations" in err

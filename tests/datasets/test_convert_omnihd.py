@@ -15,6 +15,7 @@ from radar4dgs.apps.inspect import InspectCommand
 from radar4dgs.apps.prepare import run_prepare
 from radar4dgs.cli import main
 from radar4dgs.datasets.convert.omnihd import CAMERA, LIDAR, RADAR, convert_omnihd
+from radar4dgs.depth import DepthWarning
 from radar4dgs.io.preview import summarize_scene
 from radar4dgs.io.scene import SceneError, read_scene
 
@@ -209,7 +210,9 @@ def test_inspect_and_prepare_accept_the_scene(converted, tmp_path):
     assert InspectCommand(scene.root, sheet=tmp_path / "sheet.png", frames=2).run() == 0
     assert (tmp_path / "sheet.png").is_file()
     # The whole front end runs (depth falls back to the weight-free flat-world prior).
-    status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    with pytest.warns(DepthWarning) as record:  # no prior, no weights, no radar fit on these few points
+        status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    assert any("flat-world" in str(r.message) for r in record)
     assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "flow": "ran"}
     radar_summary = json.loads((tmp_path / "prepared" / "radar" / "summary.json").read_text())
     assert radar_summary["num_ok"] == 4

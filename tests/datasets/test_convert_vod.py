@@ -14,6 +14,7 @@ from _convert_helpers import rigid, yaw
 from radar4dgs.apps.prepare import run_prepare
 from radar4dgs.cli import main
 from radar4dgs.datasets.convert.vod import convert_vod, parse_range, sequence_breaks
+from radar4dgs.depth import DepthWarning
 from radar4dgs.io.preview import summarize_scene
 from radar4dgs.io.scene import SceneError, read_scene
 
@@ -181,7 +182,9 @@ def test_inspect_and_prepare_accept_the_scene(converted, tmp_path):
     assert summarize_scene(scene)["ego_speed_from_poses_mps"]["mean"] == pytest.approx(SPEED)
     assert main(["inspect", str(scene.root), "--sheet", str(tmp_path / "sheet.png")]) == 0
     # The whole front end runs (depth falls back to the weight-free flat-world prior).
-    status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    with pytest.warns(DepthWarning) as record:  # no prior, no weights, no radar fit on these few points
+        status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
+    assert any("flat-world" in str(r.message) for r in record)
     assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "flow": "ran"}
     summary = json.loads((tmp_path / "prepared" / "radar" / "summary.json").read_text())
     assert summary["num_ok"] == 4 and summary["disagreement"]["rmse"] < 0.05

@@ -259,8 +259,11 @@ def test_cli_synth_with_field_override(tmp_path, capsys):
     assert scene.source["seed"] == 3 and scene.source["preset"] == "tiny" and len(scene) == 2
     assert scene.extra["synthetic"]["config"]["radar"]["range_std"] == 0.1
     assert "wrote" in capsys.readouterr().out
+    # An existing output is a user error: one line naming it, exit status 1 (--debug raises).
+    assert main(["synth", str(out), "--preset", "tiny", "--scene.num-frames", "2"]) == 1
+    assert f"{out}: already exists" in capsys.readouterr().err
     with pytest.raises(FileExistsError):
-        main(["synth", str(out), "--preset", "tiny", "--scene.num-frames", "2"])
+        main(["synth", str(out), "--preset", "tiny", "--scene.num-frames", "2", "--debug"])
 
 
 def test_bad_options_are_refused(tmp_path):

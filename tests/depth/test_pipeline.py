@@ -14,6 +14,9 @@ from radar4dgs.config import load_config
 from radar4dgs.depth import DepthConfig, DepthWarning, depth_frontend_metrics, evaluate_depth_methods, prepare_depth
 from radar4dgs.io.scene import read_scene
 
+# The module's scene has an empty radar frame on purpose (frame 2): every load of it says so.
+pytestmark = pytest.mark.filterwarnings("ignore:.*000002.npy. empty radar frame:radar4dgs.io.scene.SceneWarning")
+
 
 def _all_static(scene):
     return [np.ones(len(scene.load_radar(i)), bool) for i in range(len(scene))]

@@ -129,3 +129,29 @@ def test_object_velocity_on_a_tiny_synthetic_scene(tmp_path):
     assert radar["object_velocity_error_median"] < 0.4 and radar["object_velocity_error_p90"] < 1.2
     assert radar["object_radial_error_median"] is not None
     assert "radar.object_velocity_error_median" in format_report(report)
+
+
+def test_a_scene_without_gt_depth_is_scored_on_what_it_has(tiny_trained_run, tmp_path, capsys):
+    # Real datasets have no gt/depth: every section that can be scored is, the others are listed
+    # as skipped with the reason, and the command succeeds.
+    import shutil
+
+    root = tmp_path / "scene"
+    shutil.copytree(tiny_trained_run / "scene", root)
+    shutil.rmtree(root / "gt" / "depth")
+    assert (root / "prepared" / "flow").is_dir() and not (root / "gt" / "depth").exists()
+    out = tmp_path / "frontend.json"
+    assert main(["frontend-eval", str(root), "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads(out.read_text())
+    assert report["radar"]["dynamic_recall"] is not None
+    assert report["masks"]["mask_iou"] is not None
+    assert report["depth"]["depth_absrel"] is None and report["depth"]["sky_iou"] is not None
+    assert any("no gt/depth" in note for note in report["depth"]["notes"])
+    assert "flow" not in report and "gt/depth" in report["skipped"]["flow"]
+    assert "flow skipped" in printed and "no ground truth: the scene has no gt/depth" in printed
+    # Without --json the report goes to stdout and each skipped section is said on stderr.
+    assert main(["frontend-eval", str(root)]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["skipped"] == report["skipped"]
+    assert "radar4dgs frontend-eval: skipped flow: no ground truth" in captured.err

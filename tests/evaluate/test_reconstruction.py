@@ -85,6 +85,45 @@ def test_predicted_masks_are_used_without_ground_truth(trained, tmp_path):
     (run_dir / "run.json").write_text(json.dumps(run_file))
     metrics = evaluate_run(run_dir, video=False, report=False, progress=False)
     assert metrics["mask_source"] == "predicted"
+    assert any("predicted dynamic masks" in c for c in metrics["psnr_dyn_caveats"])
+
+
+def test_psnr_star_on_near_empty_masks_is_flagged(trained, tmp_path, capsys):
+    # Predicted masks with one pixel per frame (0.01 % of the image): PSNR* is computed, and flagged
+    # in metrics.json, in the printed table and in the report, which also says what made the run.
+    from radar4dgs.evaluate.reconstruction import write_provenance
+    from radar4dgs.io.scene import read_scene
+
+    scene = tmp_path / "scene"
+    shutil.copytree(trained / "scene", scene, ignore=shutil.ignore_patterns("gt", "prepared"))
+    prepared = tmp_path / "prepared"
+    shutil.copytree(trained / "scene" / "prepared", prepared)
+    width, height = read_scene(scene).camera.width, read_scene(scene).camera.height
+    for mask in (prepared / "masks").glob("*.png"):
+        pixels = np.zeros((height, width), np.uint8)
+        pixels[height // 2, width // 2] = 255
+        Image.fromarray(pixels).save(mask)
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained / "run", run_dir)
+    (run_dir / "run.json").write_text(json.dumps({"scene": str(scene), "prepared": str(prepared)}))
+    write_provenance(run_dir, preset="tiny", method="ours", command="radar4dgs train (test)")
+    assert main(["eval", str(run_dir), "--no-video"]) == 0
+    printed = capsys.readouterr().out
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["mask_source"] == "predicted"
+    assert metrics["mask_coverage"]["nvs"] == pytest.approx(1 / (width * height))
+    assert metrics["nvs"]["psnr_dyn"] is not None
+    flagged = [c for c in metrics["psnr_dyn_caveats"] if "not meaningful" in c]
+    share = f"{1 / (width * height):.2%} of the pixels"
+    assert len(flagged) == 2 and share in flagged[0]
+    assert f"caveat: PSNR* (recon) is computed on {share}" in printed
+    assert metrics["run"]["preset"] == "tiny" and len(metrics["run"]["config_hash"]) == 12
+    assert metrics["run"]["train_seconds"] > 0 and metrics["run"]["iterations"] == 20
+    report = (run_dir / "report.html").read_text()
+    assert "<td>preset</td><td>tiny</td>" in report and metrics["run"]["config_hash"] in report
+    assert "<td>training time</td>" in report and '<a href="config.json">' in report
+    assert "not meaningful" in report and f"predicted (recon {share}" in report
+    assert "<video" not in report  # --no-video: no video to link
 
 
 def test_missing_model_is_named(tmp_path):

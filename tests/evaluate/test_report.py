@@ -109,7 +109,29 @@ def test_report_is_self_contained(report):
     assert "http" not in outside.lower()
     for marker in ("<script", "<link", "@import", "url(", "//"):
         assert marker not in outside.lower(), marker
-    assert all(src == "" for src in re.findall(r'src="([^"]*)"', outside))
+    # Every image is inside; the only references are to files beside the report (the run folder's).
+    assert all(src == "" or "/" not in src and ":" not in src for src in re.findall(r'src="([^"]*)"', outside))
+    assert all("/" not in href and ":" not in href for href in re.findall(r'href="([^"]*)"', outside))
+
+
+def test_report_states_what_made_the_run_and_its_caveats(tmp_path):
+    args = inputs(n_panels=1)
+    caveat = "PSNR* (nvs) is computed on 0.09% of the pixels (predicted masks, 3 of 4 frames): not meaningful"
+    path = write_report(tmp_path / "report.html", **args,
+                        run_info={"preset": "small", "config hash": "0123456789ab", "training time": "12.7 min"},
+                        caveats=[caveat], links={"resolved config": "config.json"}, video="video.mp4",
+                        config={"optim": {"iterations": 1800}})
+    text = path.read_text(encoding="utf-8")
+    assert "<td>preset</td><td>small</td>" in text and "0123456789ab" in text and "12.7 min" in text
+    assert '<a href="config.json">resolved config (config.json)</a>' in text
+    assert '<video controls loop muted preload="metadata" src="video.mp4">' in text
+    assert html.escape('"iterations": 1800') in text
+    assert f'<p class="caveat">{html.escape(caveat)}</p>' in text
+    # The run section comes first, the caveat right under the metrics it qualifies.
+    assert text.index("<h2>Run</h2>") < text.index("<h2>Metrics</h2>") < text.index("<p class=\"caveat\">") \
+        < text.index("<h2>Per-frame PSNR</h2>")
+    with pytest.raises(ValueError, match="beside the report"):
+        write_report(tmp_path / "bad.html", **args, links={"x": "https://example.org/config.json"})
 
 
 def test_missing_sections_and_bad_images(tmp_path):

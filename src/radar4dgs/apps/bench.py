@@ -24,11 +24,12 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping, Optional, Sequence
+from typing import Annotated, Any, Callable, Mapping, Optional, Sequence
 
 from radar4dgs.apps.bench_cell import run_cell, run_grid
 from radar4dgs.apps.bench_spec import BenchError, BenchScene, CellSpec, check_methods, parse_overrides, resolve_scenes
 from radar4dgs.apps.bench_table import PLOT_FILE, TABLE_CSV, TABLE_MD, summarize, write_outputs
+from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.train.variants import METHOD_NAMES, VARIANTS, MethodName, merge, variant_config
@@ -143,26 +144,26 @@ class BenchCommand:
     """Train and evaluate every method (baselines and ablations) on every scene; one table."""
 
     # Scene folders, each prepared in <scene>/prepared (`radar4dgs prepare SCENE`).
-    scenes: tuple[Path, ...] = ()
+    scenes: Annotated[tuple[Path, ...], default_is("none")] = ()
     # Synthetic scene seeds, synthesized and prepared into OUT/scenes/seed<N>/ (reused when present).
-    synth_seeds: tuple[int, ...] = ()
+    synth_seeds: Annotated[tuple[int, ...], default_is("none")] = ()
     # Preset of the synthetic scenes and their preparation.
     synth_preset: PresetName = "small"
-    # Methods, in table order (default: all of them; see radar4dgs.train.variants).
+    # Methods, in table order (see radar4dgs.train.variants).
     methods: tuple[MethodName, ...] = METHOD_NAMES
     # Output folder: runs/<scene>/<method>/, bench.json, table.md, table.csv, ablation.png.
     out: Path = Path("runs/bench")
     # Training preset of every cell.
     preset: PresetName = "small"
-    # Training iterations of every cell (default: the preset's).
-    iterations: Optional[int] = None
+    # Training iterations of every cell.
+    iterations: Annotated[Optional[int], default_is("the preset's")] = None
     # Cells trained at once, each in its own process.
     jobs: int = 1
     # TrainConfig fields of every cell, as dotted KEY=VALUE (JSON values), e.g.
     # densify.max_gaussians=40000; a method's own fields (train.variants) still win.
-    set: tuple[str, ...] = ()
-    # Torch threads per job (default: the CPU count divided by --jobs).
-    threads: Optional[int] = None
+    set: Annotated[tuple[str, ...], default_is("none")] = ()
+    # Torch threads per job.
+    threads: Annotated[Optional[int], default_is("the CPU count divided by --jobs")] = None
     # Compute LPIPS when the backbone weights are present (the column shows "–" otherwise).
     lpips: bool = True
     # Hide the training and evaluation progress bars (they are always hidden with --jobs > 1).

@@ -33,7 +33,7 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     bench's (other iterations, say) raises: its numbers would not belong in this table.
     """
     from radar4dgs.config import read_config_dict
-    from radar4dgs.evaluate.reconstruction import evaluate_run
+    from radar4dgs.evaluate.reconstruction import evaluate_run, write_provenance
     from radar4dgs.model.config import TrainConfig
     from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
     from radar4dgs.train.fit_motion import torch_threads
@@ -59,6 +59,8 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
         return {"action": state, "metrics": cell_summary(json.loads((run / METRICS_FILE).read_text()))}
     if state in ("trained", "resumed"):
         train_run(spec.scene_path, spec.prepared, run, config, resume=state == "resumed", progress=spec.progress)
+        write_provenance(run, preset=spec.preset, method=spec.method,
+                         command=f"radar4dgs bench (cell {spec.scene}/{spec.method}, preset {spec.preset})")
     with torch_threads(config.threads):
         metrics = evaluate_run(run, lpips=spec.lpips, video=False, report=False, progress=spec.progress)
     return {"action": state, "metrics": cell_summary(metrics)}

@@ -1,12 +1,92 @@
-"""``radar4dgs demo``: the whole pipeline on the built-in synthetic scene, from synthesis to metrics and video."""
+"""``radar4dgs demo``: the whole pipeline on the built-in synthetic scene, from synthesis to metrics and video.
+
+The demo folder keeps what each step made (``scene/``, ``prepared/``, ``run/``) and reuses it on the
+next call with the same request. ``OUT/demo.json`` records what produced it: the preset, the seed,
+the scene's fingerprint and the prepared stages the run was trained on. A call with another preset,
+seed or config is refused with one line saying what differs (``--fresh`` starts over), so old numbers
+are never printed under a new request's name; a run trained on prepared outputs that have changed
+since is retrained.
+"""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import shutil
+import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
-from radar4dgs.config import PresetName, preset
+from radar4dgs.config import PresetName, config_difference, preset, read_config_dict
+
+DEMO_FILE = "demo.json"
+# What `--fresh` removes from OUT: everything the demo writes there, nothing else.
+DEMO_OUTPUTS = ("scene", "prepared", "run", "inspect.png", "frontend_metrics.json", DEMO_FILE)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def _first(lines: list[str], limit: int = 3) -> str:
+    """The first ``limit`` differences, and how many more."""
+    more = f"; and {len(lines) - limit} more" if len(lines) > limit else ""
+    return "; ".join(lines[:limit]) + more
+
+
+def _request(preset_name: str, seed: int) -> str:
+    return f"preset '{preset_name}', seed {seed}"
+
+
+def scene_conflict(scene_dir: Path, preset_name: str, seed: int, record: dict[str, Any]) -> str | None:
+    """Why the scene in ``scene_dir`` is not the one asked for (None when it is, or is absent):
+    ``record`` is the generator config as scene.json records it (``config_record``)."""
+    path = scene_dir / "scene.json"
+    if not path.exists():
+        return None
+    scene = _read_json(path)
+    source = (scene or {}).get("source") or {}
+    synthetic = (scene or {}).get("synthetic")  # SceneWriter.finish(extra=...) keys sit at the top level
+    if scene is None or source.get("dataset") != "synthetic" or not isinstance(synthetic, dict):
+        return f"{path}: not a synthetic scene made by `radar4dgs demo`"
+    made = (source.get("preset"), source.get("seed"))
+    if made != (preset_name, seed):
+        return f"{scene_dir} was made with {_request(*made)}, not {_request(preset_name, seed)}"
+    saved = synthetic.get("config")
+    if isinstance(saved, dict) and saved != record:
+        return f"{path}: the scene was made with another generator config ({_first(config_difference(saved, record))})"
+    return None
+
+
+def run_conflict(run_dir: Path, train_config: Any) -> str | None:
+    """Why the run in ``run_dir`` was not trained with ``train_config`` (None when it was, or is absent)."""
+    from radar4dgs.model.config import TrainConfig
+    from radar4dgs.model.run import CONFIG_FILE
+    from radar4dgs.train.run_config import run_config_difference
+
+    path = run_dir / CONFIG_FILE
+    if not path.exists():
+        return None
+    lines = run_config_difference(read_config_dict(TrainConfig, path), train_config)
+    return f"{path}: the run was trained with another config ({_first(lines)})" if lines else None
+
+
+def stage_fingerprints(prepared: Path) -> dict[str, str]:
+    """sha256 of each prepared stage's ``stage.json`` (its config, its scene and its result)."""
+    from radar4dgs.apps.prepare import STAGE_MARKER, STAGES
+
+    return {s.name: _sha256(prepared / s.name / STAGE_MARKER) for s in STAGES
+            if (prepared / s.name / STAGE_MARKER).is_file()}
 
 
 @dataclass
@@ -17,36 +97,91 @@ class DemoCommand:
     out: Path = Path("runs/demo")  # folder for the scene and every output
     preset: PresetName = "small"  # scene and pipeline size: tiny (seconds), small (CPU default), paper (GPU)
     seed: int = 1  # synthetic scene seed
-    fresh: bool = False  # regenerate the scene even if OUT/scene exists
+    # Start over: delete what an earlier demo wrote in OUT (scene, prepared stages, run) and redo every
+    # step. Without it a folder made with another preset, seed or config is refused.
+    fresh: bool = False
 
     def run(self) -> int:
-        from radar4dgs.datasets.synth import SynthConfig, synthesize
+        from radar4dgs.apps.prepare import PrepareConfig
+        from radar4dgs.datasets.synth import SynthConfig
+        from radar4dgs.datasets.synth.generate import config_record
+        from radar4dgs.model.config import TrainConfig
+        from radar4dgs.train.trainer import TrainingError
+
+        started = time.perf_counter()
+        synth_config = replace(preset(SynthConfig, self.preset), seed=self.seed)
+        prepare_config = preset(PrepareConfig, self.preset)
+        train_config = preset(TrainConfig, self.preset)
+        scene_dir, prepared, run_dir = self.out / "scene", self.out / "prepared", self.out / "run"
+        print(f"radar4dgs demo: {_request(self.preset, self.seed)} -> {self.out}")
+        if self.fresh:
+            for name in DEMO_OUTPUTS:
+                path = self.out / name
+                if path.is_dir():
+                    shutil.rmtree(path)
+                elif path.exists():
+                    path.unlink()
+        else:
+            conflict = self.conflict(record=config_record(synth_config), train_config=train_config)
+            if conflict:
+                print(f"radar4dgs demo: {conflict}; pass --fresh to redo the demo in {self.out}, "
+                      f"or choose another --out", file=sys.stderr)
+                return 1
+        self.synthesise(synth_config, scene_dir)
+        scene = self.inspect(scene_dir)
+        status = self.prepare(scene_dir, prepared, prepare_config)
+        self.score_frontend(scene, prepared)
+        try:
+            self.train(scene_dir, prepared, run_dir, train_config, status)
+        except TrainingError as exc:
+            print(f"radar4dgs demo: {exc}", file=sys.stderr)
+            return 1
+        self.evaluate(run_dir)
+        print(f"    config:  {scene_dir / 'scene.json'} (scene), {prepared / 'config.json'} (prepare), "
+              f"{run_dir / 'config.json'} (train)")
+        print(f"done in {time.perf_counter() - started:.1f} s ({_request(self.preset, self.seed)})")
+        return 0
+
+    def conflict(self, record: dict[str, Any], train_config: Any) -> str | None:
+        """Why OUT holds another request's demo (None when it holds this one's, part of it, or nothing)."""
+        demo = _read_json(self.out / DEMO_FILE)
+        if demo is not None and (demo.get("preset"), demo.get("seed")) != (self.preset, self.seed):
+            return (f"{self.out / DEMO_FILE}: the demo there was made with "
+                    f"{_request(demo.get('preset'), demo.get('seed'))}, not {_request(self.preset, self.seed)}")
+        return (scene_conflict(self.out / "scene", self.preset, self.seed, record)
+                or run_conflict(self.out / "run", train_config))
+
+    def synthesise(self, config: Any, scene_dir: Path) -> None:
+        from radar4dgs.datasets.synth import synthesize
+
+        print(f"[1] synthesise a '{self.preset}' scene (seed {self.seed}) -> {scene_dir}")
+        if (scene_dir / "scene.json").is_file():
+            print("    reusing the scene (same preset, seed and config; --fresh to regenerate)")
+            return
+        synthesize(config, scene_dir, overwrite=True, preset=self.preset)
+
+    def inspect(self, scene_dir: Path):
         from radar4dgs.io.preview import contact_sheet, format_summary, save_png, summarize_scene
         from radar4dgs.io.scene import read_scene
 
-        started = time.perf_counter()
-        scene_dir = self.out / "scene"
-        print(f"[1] synthesise a '{self.preset}' scene (seed {self.seed}) -> {scene_dir}")
-        if self.fresh or not (scene_dir / "scene.json").is_file():
-            synthesize(replace(preset(SynthConfig, self.preset), seed=self.seed), scene_dir, overwrite=True,
-                       preset=self.preset)
-        else:
-            print("    reusing the existing scene (--fresh to regenerate)")
         scene = read_scene(scene_dir)
-
         print("[2] inspect")
         print("    " + format_summary(summarize_scene(scene)).replace("\n", "\n    "))
         sheet = save_png(self.out / "inspect.png", contact_sheet(scene))
         print(f"    contact sheet: {sheet}")
+        return scene
 
-        from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    def prepare(self, scene_dir: Path, prepared: Path, config: Any) -> dict[str, str]:
+        from radar4dgs.apps.prepare import run_prepare
+
+        print(f"[3] prepare the front end -> {prepared}")
+        status = run_prepare(scene_dir, prepared, config)
+        print("    " + ", ".join(f"{stage}: {what}" for stage, what in status.items()))
+        return status
+
+    def score_frontend(self, scene, prepared: Path) -> None:
         from radar4dgs.evaluate.frontend import evaluate_frontend, format_report
         from radar4dgs.io.atomic import atomic_write_json
-
-        prepared = self.out / "prepared"
-        print(f"[3] prepare the front end -> {prepared}")
-        status = run_prepare(scene_dir, prepared, preset(PrepareConfig, self.preset))
-        print("    " + ", ".join(f"{stage}: {what}" for stage, what in status.items()))
 
         print("[4] score the front end against the scene's ground truth")
         report = evaluate_frontend(scene, prepared)
@@ -54,27 +189,35 @@ class DemoCommand:
         print("    " + format_report(report).replace("\n", "\n    "))
         print(f"    written to {self.out / 'frontend_metrics.json'}")
 
-        from radar4dgs.evaluate.reconstruction import evaluate_run, format_metrics
-        from radar4dgs.model.config import TrainConfig
+    def train(self, scene_dir: Path, prepared: Path, run_dir: Path, config: Any, status: dict[str, str]) -> None:
+        from radar4dgs.evaluate.reconstruction import write_provenance
+        from radar4dgs.io.atomic import atomic_write_json
         from radar4dgs.train.trainer import train_run
 
-        run_dir = self.out / "run"
         print(f"[5] train the Gaussian scene (three stages, '{self.preset}' preset) -> {run_dir}")
-        train_config = preset(TrainConfig, self.preset)
-        resume = (run_dir / "checkpoints" / "last.pt").is_file() and not self.fresh
-        if self.fresh and run_dir.exists():
-            import shutil
-
+        inputs = {"scene": _sha256(scene_dir / "scene.json"), "prepared": stage_fingerprints(prepared)}
+        demo = _read_json(self.out / DEMO_FILE) or {}
+        # A run trained on other inputs than the current ones is stale: demo.json names the scene
+        # and prepared stages it was trained on; in a folder from an older demo without it, a stage
+        # that reran just now tells.
+        stale = demo["trained_on"] != inputs if "trained_on" in demo else any(v == "ran" for v in status.values())
+        if run_dir.exists() and stale:
+            print("    the scene or its prepared stages changed since the run was trained: retraining")
             shutil.rmtree(run_dir)
-        if (run_dir / "model.pt").is_file() and resume:
-            print("    reusing the finished run (--fresh to retrain)")
+        if (run_dir / "model.pt").is_file():
+            print("    reusing the finished run (same preset, seed and config; --fresh to retrain)")
         else:
-            train_run(scene_dir, prepared, run_dir, train_config, resume=resume, progress=True)
+            resume = (run_dir / "checkpoints" / "last.pt").is_file()
+            train_run(scene_dir, prepared, run_dir, config, resume=resume, progress=True)
+        write_provenance(run_dir, preset=self.preset, method="ours",
+                         command=f"radar4dgs demo --out {self.out} --preset {self.preset} --seed {self.seed}")
+        atomic_write_json(self.out / DEMO_FILE, {"preset": self.preset, "seed": self.seed, "trained_on": inputs})
+
+    def evaluate(self, run_dir: Path) -> None:
+        from radar4dgs.evaluate.reconstruction import evaluate_run, format_metrics
 
         print("[6] evaluate: training frames (recon) and held-out frames (nvs)")
         metrics = evaluate_run(run_dir, progress=True)
         print("    " + format_metrics(metrics).replace("\n", "\n    "))
         print(f"    metrics: {run_dir / 'metrics.json'}\n    video:   {run_dir / 'video.mp4'}\n"
               f"    report:  {run_dir / 'report.html'}")
-        print(f"done in {time.perf_counter() - started:.1f} s")
-        return 0

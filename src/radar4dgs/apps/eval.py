@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Optional
 
 import tyro
+
+from radar4dgs.apps.options import default_is
 
 
 @dataclass
@@ -13,7 +16,8 @@ class EvalCommand:
     """Evaluate a trained run: metrics.json, renders, a video and an HTML report."""
 
     run_dir: tyro.conf.Positional[Path]  # the run folder written by `radar4dgs train`
-    device: str | None = None  # torch device (default: the one the run was trained on)
+    # torch device
+    device: Annotated[Optional[str], default_is("the one the run was trained on")] = None
     lpips: bool = True  # compute LPIPS when the backbone weights are present (null otherwise)
     video: bool = True  # write RUN/video.mp4
     report: bool = True  # write RUN/report.html

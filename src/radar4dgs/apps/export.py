@@ -16,10 +16,12 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Optional
+from typing import TYPE_CHECKING, Annotated, Literal, Optional
 
 import numpy as np
 import tyro
+
+from radar4dgs.apps.options import default_is
 
 if TYPE_CHECKING:
     pass
@@ -129,8 +131,8 @@ class ExportCommand:
     time: float = 0.0
     # static = static Gaussians only; all = static + dynamic at --time.
     part: Literal["static", "all"] = "all"
-    # Output file; default RUN/export/scene_<part>_t<T>.ply.
-    out: Optional[Path] = None
+    # Output file.
+    out: Annotated[Optional[Path], default_is("RUN/export/scene_<part>_t<T>.ply")] = None
     # Spherical-harmonics degree of the file (the extra coefficients are zeros; most viewers want 3).
     sh_degree: int = 3
     # Torch device the model is loaded on (the CPU is enough: only the field is evaluated).

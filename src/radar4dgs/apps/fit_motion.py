@@ -5,10 +5,11 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar, Optional
+from typing import Annotated, ClassVar, Optional
 
 import tyro
 
+from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName
 from radar4dgs.train.config import MotionConfig
 
@@ -19,10 +20,10 @@ class FitMotionCommand:
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]
-    # The prepared folder (depth, masks, radar, flow); default <scene>/prepared.
-    prepared: Optional[Path] = None
-    # Output folder for results.json, field.pt and config.json; default <prepared>/motion.
-    out: Optional[Path] = None
+    # The prepared folder (depth, masks, radar, flow).
+    prepared: Annotated[Optional[Path], default_is("SCENE/prepared")] = None
+    # Output folder for results.json, field.pt and config.json.
+    out: Annotated[Optional[Path], default_is("PREPARED/motion")] = None
     # Supervise with the lifted optical flow (L_flow).
     use_flow: bool = True
     # Supervise with the radar's compensated Doppler (L_rad).

@@ -5,8 +5,11 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Optional
 
 import tyro
+
+from radar4dgs.apps.options import default_is
 
 
 @dataclass
@@ -14,7 +17,8 @@ class InspectCommand:
     """Summarise a scene folder and write a contact sheet of frames with radar points coloured by v_r."""
 
     scene: tyro.conf.Positional[Path]  # scene folder (SCENE_FORMAT.md)
-    sheet: Path | None = None  # contact-sheet PNG to write (default: SCENE/inspect.png)
+    # contact-sheet PNG to write
+    sheet: Annotated[Optional[Path], default_is("SCENE/inspect.png")] = None
     frames: int = 4  # how many frames the contact sheet shows
     json: Path | None = None  # also write the summary as JSON here
 

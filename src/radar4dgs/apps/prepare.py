@@ -14,11 +14,12 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Mapping, Optional
+from typing import Annotated, Any, Callable, ClassVar, Literal, Mapping, Optional
 
 import tyro
 from tqdm import tqdm
 
+from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName, save_config, to_dict
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
@@ -91,6 +92,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("masks", _run_masks),
     Stage("flow", run_flow_stage),
 )
+# The stage names, for `--only` (tests/apps/test_prepare.py keeps them equal to STAGES').
+StageName = Literal["radar", "depth", "masks", "flow"]
 
 
 def scene_fingerprint(scene: Scene) -> str:
@@ -154,16 +157,16 @@ class PrepareCommand:
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]
-    # The prepared folder; default <scene>/prepared.
-    out: Optional[Path] = None
+    # The prepared folder.
+    out: Annotated[Optional[Path], default_is("SCENE/prepared")] = None
     # Preset the stage configs start from.
     preset: PresetName = "small"
     # Stage configs (filled from --preset, then overridden by the options below).
     config: PrepareConfig = field(default_factory=PrepareConfig)
     # Redo stages even when their outputs exist for the same config.
     force: bool = False
-    # Run only these stages (default: all, in order).
-    only: tuple[str, ...] = ()
+    # Run only these stages (in pipeline order, whatever the order given).
+    only: Annotated[tuple[StageName, ...], default_is("every stage")] = ()
     # Hide the progress bars.
     quiet: bool = False
 

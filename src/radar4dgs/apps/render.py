@@ -23,7 +23,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator, Optional
+from typing import TYPE_CHECKING, Annotated, Iterator, Optional
 
 import numpy as np
 import tyro
@@ -31,6 +31,7 @@ import tyro
 if TYPE_CHECKING:
     import torch
 
+from radar4dgs.apps.options import default_is
 from radar4dgs.apps.trajectory import CameraPose, TrajectorySpec, build_trajectory, parse_trajectory
 
 TRAJECTORY_FILE = "trajectory.json"
@@ -193,14 +194,14 @@ class RenderCommand:
     interpolate: int = 1
     # Also write depth and dynamic-mask pictures; the video shows rgb | depth | dynamic.
     with_depth: bool = False
-    # Folder for the frames (and the video); default RUN/renders/<slug> and RUN/<slug>.mp4.
-    out: Optional[Path] = None
+    # Folder for the frames (and the video).
+    out: Annotated[Optional[Path], default_is("RUN/renders/<slug>, and RUN/<slug>.mp4")] = None
     # Frame rate of the video.
     fps: float = 10.0
     # Render at this fraction of the recorded resolution (0.5 = half width and height).
     scale: float = 1.0
-    # Torch device (default: the one the run was trained on).
-    device: Optional[str] = None
+    # Torch device.
+    device: Annotated[Optional[str], default_is("the one the run was trained on")] = None
     # Write the video.
     video: bool = True
     # Torch intra-op threads (0 = torch's default; 1 is much faster on a machine busy with other jobs).

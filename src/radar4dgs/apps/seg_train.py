@@ -5,7 +5,9 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Optional
 
+from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName
 from radar4dgs.segment.config import SegTrainConfig
 
@@ -41,13 +43,17 @@ class SegTrainCommand:
     """Train the radar-camera dynamic segmentation network on scenes with gt/dynamic_mask."""
 
     out: Path  # run folder: config.json, last.pt, best.pt, history.json
-    scenes: tuple[Path, ...] = ()  # training scene folders (need gt/dynamic_mask)
-    synth_seeds: str = ""  # also generate synthetic training scenes with these seeds, e.g. "100-119"
+    # training scene folders (need gt/dynamic_mask)
+    scenes: Annotated[tuple[Path, ...], default_is("none")] = ()
+    # also generate synthetic training scenes with these seeds, e.g. "100-119"
+    synth_seeds: Annotated[str, default_is("none")] = ""
     synth_preset: PresetName = "small"  # preset of the generated synthetic scenes
-    synth_cache: Path | None = None  # where generated scenes are kept (default: OUT/scenes)
-    val_scenes: tuple[Path, ...] = ()  # validation scenes; default: the last training scene is held out
+    # where generated scenes are kept
+    synth_cache: Annotated[Optional[Path], default_is("OUT/scenes")] = None
+    # validation scenes
+    val_scenes: Annotated[tuple[Path, ...], default_is("the last training scene is held out")] = ()
     # prepared folders (radar/<frame>.npz), one per --scenes entry, for dynamic_source=prepared/auto
-    prepared: tuple[Path, ...] = ()
+    prepared: Annotated[tuple[Path, ...], default_is("none")] = ()
     resume: bool = False  # continue from OUT/last.pt
     preset: PresetName = "small"  # fills the training options below
     train: SegTrainConfig = field(default_factory=SegTrainConfig)  # training options

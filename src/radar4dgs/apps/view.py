@@ -6,9 +6,11 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import tyro
+
+from radar4dgs.apps.options import default_is
 
 
 @dataclass
@@ -23,8 +25,8 @@ class ViewCommand:
     port: int = 8080
     # Pixel height of the CPU renders in the "radar4dgs render" display.
     render_height: int = 180
-    # Torch device for the CPU renders (default: the one the run was trained on).
-    device: Optional[str] = None
+    # Torch device for the CPU renders.
+    device: Annotated[Optional[str], default_is("the one the run was trained on")] = None
     # Torch intra-op threads of the renders (0 = torch's default).
     threads: int = 0
 

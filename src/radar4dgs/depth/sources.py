@@ -136,6 +136,9 @@ class DepthAnythingV2:
         import torch
 
         height, width = image.shape[:2]
+        # transformers turns the array into a tensor in place; a read-only one (a decoded PNG) makes
+        # torch warn that writing to it would be undefined.
+        image = image if image.flags.writeable else image.copy()
         inputs = self.processor(images=image, return_tensors="pt")
         pixels = inputs["pixel_values"].to(self.device, self.dtype)
         with torch.inference_mode():

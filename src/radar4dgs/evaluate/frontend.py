@@ -1,8 +1,10 @@
 """The ``frontend-eval`` command: metrics of the prepared front-end outputs against a scene's gt.
 
-The JSON report has one section per front-end stage (``"radar"`` now; depth, segmentation and flow
-sections are added by registering a function in ``SECTIONS``). Every metric is ``null`` when the
-scene lacks the ground truth it needs, with a ``notes`` entry saying why.
+The JSON report has one section per front-end stage (radar, depth, masks, flow; registered in
+``SECTIONS``) and scores whatever ground truth the scene has: a metric is ``null`` when the scene
+lacks what it needs, with a ``notes`` entry saying why, and a section that could score nothing (a
+stage not prepared, or no ground truth for it: real datasets have no ``gt/depth``) is left out and
+listed under ``"skipped"`` as ``{section: reason}``.
 
 Radar metrics:
     ``ego_velocity_rmse`` (m/s): RMS over frames of ``|v_est - v_true|`` (3-D, radar axes), with
@@ -35,7 +37,7 @@ import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Annotated, Any, Callable, Optional
 
 import numpy as np
 import tyro
@@ -203,7 +205,11 @@ def evaluate_depth(scene: Scene, prepared_dir: Path) -> dict:
     # Imported here so that scoring the radar alone does not import the depth stage.
     from radar4dgs.depth.metrics import depth_frontend_metrics
 
-    return depth_frontend_metrics(scene, prepared_dir)
+    result = depth_frontend_metrics(scene, prepared_dir)
+    notes = [f"no {folder}: {what} unavailable" for folder, what in
+             (("gt/depth", "depth_absrel, depth_rmse, depth_delta1, depth_coverage"), ("gt/sky_mask", "sky_iou"))
+             if not scene.has(folder)]
+    return {**result, "notes": notes} if notes else result
 
 
 def evaluate_masks(scene: Scene, prepared_dir: Path) -> dict:
@@ -221,6 +227,24 @@ def evaluate_flow(scene: Scene, prepared_dir: Path) -> dict:
 # Section name (= prepared stage folder) -> function(scene, prepared_dir) -> dict.
 SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth,
                                                      "masks": evaluate_masks, "flow": evaluate_flow}
+# Section -> the ground-truth folders it cannot score without: every one of them ("all"), or at
+# least one ("any"). The radar section always scores something (the static residual needs none).
+GROUND_TRUTH: dict[str, tuple[str, tuple[str, ...]]] = {
+    "depth": ("any", ("gt/depth", "gt/sky_mask")),
+    "masks": ("all", ("gt/dynamic_mask",)),
+    "flow": ("all", ("gt/depth", "gt/flow", "gt/dynamic_mask")),
+}
+
+
+def missing_ground_truth(scene: Scene, section: str) -> str | None:
+    """Why ``scene`` has no ground truth to score ``section`` with (None when it has)."""
+    mode, folders = GROUND_TRUTH.get(section, ("all", ()))
+    missing = [f for f in folders if not scene.has(f)]
+    if mode == "any" and len(missing) == len(folders) and folders:
+        return f"the scene has none of {', '.join(folders)}"
+    if mode == "all" and missing:
+        return f"the scene has no {', '.join(missing)}"
+    return None
 
 
 def format_report(report: dict[str, Any]) -> str:
@@ -232,20 +256,27 @@ def format_report(report: dict[str, Any]) -> str:
                 continue
             shown = "null" if value is None else (f"{value:.4f}" if isinstance(value, float) else str(value))
             lines.append(f"{section + '.' + key:<40}{shown}")
-    if report.get("skipped"):
-        lines.append(f"{'skipped (not prepared)':<40}{', '.join(report['skipped'])}")
+    for section in SECTIONS:
+        for note in (report.get(section) or {}).get("notes") or ():
+            lines.append(f"{section + ' (note)':<40}{note}")
+    for section, reason in (report.get("skipped") or {}).items():
+        lines.append(f"{section + ' skipped':<40}{reason}")
     return "\n".join(lines)
 
 
 def evaluate_frontend(scene: Scene, prepared_dir: str | Path) -> dict[str, Any]:
-    """Every section whose prepared stage folder exists; absent stages are listed as skipped."""
+    """Every section that has its prepared stage folder and ground truth to score it with; the
+    others are listed under ``"skipped"`` as ``{section: reason}``."""
     prepared_dir = Path(prepared_dir)
-    report: dict[str, Any] = {"scene": str(scene.root), "prepared": str(prepared_dir), "skipped": []}
+    report: dict[str, Any] = {"scene": str(scene.root), "prepared": str(prepared_dir), "skipped": {}}
     for name, function in SECTIONS.items():
-        if (prepared_dir / name).is_dir():
-            report[name] = function(scene, prepared_dir)
+        missing = missing_ground_truth(scene, name)
+        if not (prepared_dir / name).is_dir():
+            report["skipped"][name] = f"not prepared (no {prepared_dir / name}; run `radar4dgs prepare`)"
+        elif missing:
+            report["skipped"][name] = f"no ground truth: {missing}"
         else:
-            report["skipped"].append(name)
+            report[name] = function(scene, prepared_dir)
     return report
 
 
@@ -257,8 +288,8 @@ class FrontendEvalCommand:
     scene: tyro.conf.Positional[Path]
     # Where to write the JSON report (printed to stdout when not given).
     json: Optional[Path] = None
-    # The prepared folder; default <scene>/prepared.
-    prepared: Optional[Path] = None
+    # The prepared folder.
+    prepared: Annotated[Optional[Path], tyro.conf.arg(help_behavior_hint="(default: SCENE/prepared)")] = None
 
     def run(self) -> int:
         import json as _json
@@ -278,4 +309,6 @@ class FrontendEvalCommand:
             print(f"wrote {self.json}")
         else:
             print(_json.dumps(report, indent=2))
+            for section, reason in report["skipped"].items():
+                print(f"radar4dgs frontend-eval: skipped {section}: {reason}", file=sys.stderr)
         return 0

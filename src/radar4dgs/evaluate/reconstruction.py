@@ -4,19 +4,28 @@ It reloads the run's saved config (``RUN/config.json``, ``RUN/run.json``) and mo
 (``RUN/model.pt``), renders every frame at the scene's full resolution with no dropout and no
 gradient (never through the training loop), and writes:
 
-- ``RUN/metrics.json``: ``{"recon": {...}, "nvs": {...}, "mask_source": ..., "lpips_available": ...,
-  "per_frame": {"recon": [...], "nvs": [...]}}``; each split holds ``psnr``, ``ssim``,
-  ``lpips_vgg``, ``lpips_alex`` (null without backbone weights), ``psnr_dyn`` (PSNR* over the
-  dynamic-mask pixels, averaged over frames whose mask is not empty) and ``n_frames``.
-  Reconstruction = training frames, novel-view synthesis (nvs) = test frames (every 4th).
+- ``RUN/metrics.json``: ``{"recon": {...}, "nvs": {...}, "mask_source": ..., "mask_coverage": ...,
+  "psnr_dyn_caveats": [...], "lpips_available": ..., "run": {...}, "per_frame": {"recon": [...],
+  "nvs": [...]}}``; each split holds ``psnr``, ``ssim``, ``lpips_vgg``, ``lpips_alex`` (null
+  without backbone weights), ``psnr_dyn`` (PSNR* over the dynamic-mask pixels, averaged over
+  frames whose mask is not empty) and ``n_frames``. Reconstruction = training frames, novel-view
+  synthesis (nvs) = test frames (every 4th). ``mask_coverage``: per split, the fraction of the
+  pixels the PSNR* masks cover; ``psnr_dyn_caveats`` says when PSNR* means little (masks under
+  :data:`MIN_MASK_COVERAGE` of the pixels, predicted masks). ``run`` (:func:`run_record`): what
+  made the run (preset, method, config hash, code version, training time).
 - ``RUN/renders/{recon,nvs}/<frame>.png`` and ``<frame>_depth.png``, ``<frame>_dynamic.png``.
 - ``RUN/video.mp4``: ground truth | render | depth | dynamic mask, every frame in time order.
-- ``RUN/report.html``: metrics, per-frame PSNR, loss curves and test-frame panels (one file).
+- ``RUN/report.html``: what made the run, metrics and their caveats, per-frame PSNR, loss curves
+  and test-frame panels (one file; it links ``config.json``, ``metrics.json`` and the video beside it).
+
+``RUN/provenance.json`` (:func:`write_provenance`, written by the commands that train) names the
+preset and method a run was made with, which its resolved config alone does not say.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import time
 import warnings
@@ -30,13 +39,16 @@ from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
 from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
 from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
-from radar4dgs.model.run import HISTORY_FILE, LOSS_TERMS, Run, load_run
+from radar4dgs.model.run import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, Run, load_run
 from radar4dgs.model.view import View, frame_view
 
 METRICS_FILE = "metrics.json"
 RENDERS_DIR = "renders"
 VIDEO_FILE = "video.mp4"
 REPORT_FILE = "report.html"
+PROVENANCE_FILE = "provenance.json"
+# PSNR* is flagged as not meaningful when its masks cover less than this fraction of a split's pixels.
+MIN_MASK_COVERAGE = 0.005
 # One colour scale for every depth picture of a run, so the video does not flicker (metres).
 DEPTH_NEAR, DEPTH_FAR = 2.0, 120.0
 
@@ -67,6 +79,74 @@ def dynamic_mask(run: Run, index: int, source: str) -> np.ndarray:
     name = run.scene.frames[index].name
     shape = (run.scene.camera.height, run.scene.camera.width)
     return read_mask_png(run.prepared / "masks" / f"{name}.png", shape)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def write_provenance(run_dir: str | Path, *, preset: str | None, method: str | None, command: str) -> Path:
+    """Record in ``RUN/provenance.json`` the preset and method names and the command that made the
+    run, with the code version (the resolved config is ``RUN/config.json``)."""
+    from radar4dgs import __version__
+
+    return atomic_write_json(Path(run_dir) / PROVENANCE_FILE, {"preset": preset, "method": method,
+                                                               "command": command, "code_version": __version__})
+
+
+def config_hash(run_dir: str | Path) -> str | None:
+    """The first 12 hex digits of the sha256 of the run's resolved config (``config.json``'s
+    ``config``, keys sorted): two runs with one hash were made with one config."""
+    config = _read_json(Path(run_dir) / CONFIG_FILE).get("config")
+    if config is None:
+        return None
+    return hashlib.sha256(json.dumps(config, sort_keys=True).encode("utf-8")).hexdigest()[:12]
+
+
+def run_record(run: Run) -> dict[str, Any]:
+    """What made the run: ``preset``, ``method`` and ``command`` (from ``provenance.json``; null
+    for a run trained without it), ``config_hash``, ``code_version`` (evaluating) and
+    ``trained_with_version``, ``iterations`` and ``train_seconds`` (of the last training call:
+    a resumed run counts only the part after its resume)."""
+    from radar4dgs import __version__
+
+    provenance = _read_json(run.root / PROVENANCE_FILE)
+    history = _read_json(run.root / HISTORY_FILE)
+    return {"preset": provenance.get("preset"), "method": provenance.get("method") or run.config.method,
+            "command": provenance.get("command"), "config_hash": config_hash(run.root),
+            "code_version": __version__, "trained_with_version": provenance.get("code_version"),
+            "iterations": run.config.optim.iterations, "train_seconds": history.get("train_seconds_last_call")}
+
+
+def mask_caveats(per_frame: dict[str, list[dict]], source: str, pixels_per_frame: int
+                 ) -> tuple[dict[str, float | None], list[str]]:
+    """Per split, the fraction of the pixels the PSNR* masks cover, and the caveats on PSNR*:
+    masks under :data:`MIN_MASK_COVERAGE` of the pixels (PSNR* is then an average over a few
+    pixels, typically of a missed object's edge, not a measure of the moving objects), masks empty
+    in every frame, predicted masks (an object they miss is not scored)."""
+    coverage: dict[str, float | None] = {}
+    caveats = []
+    for split, entries in per_frame.items():
+        if not entries:
+            coverage[split] = None
+            continue
+        covered = sum(e["dynamic_pixels"] for e in entries) / (len(entries) * pixels_per_frame)
+        coverage[split] = covered
+        with_mask = sum(e["dynamic_pixels"] > 0 for e in entries)
+        if with_mask == 0:
+            caveats.append(f"PSNR* ({split}): the {source} dynamic masks are empty in every frame; not computed")
+        elif covered < MIN_MASK_COVERAGE:
+            caveats.append(f"PSNR* ({split}) is computed on {covered:.2%} of the pixels ({source} masks, "
+                           f"{with_mask} of {len(entries)} frames): under {MIN_MASK_COVERAGE:.1%}, too few "
+                           f"pixels to measure the moving objects; it is not meaningful")
+    if source == "predicted":
+        caveats.append("PSNR* uses the predicted dynamic masks (the scene has no gt/dynamic_mask): a moving "
+                       "object the masks miss is not scored")
+    return coverage, caveats
 
 
 def radar_overlay(scene, index: int, image: np.ndarray) -> np.ndarray:
@@ -137,11 +217,13 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                                "error": error_to_rgb(render_u8, gt_u8), "depth": depth_u8,
                                "dynamic mask": dyn_u8, "radar": radar_overlay(scene, index, gt_u8),
                                "psnr": f"{entry['psnr']:.2f} dB"})
+    coverage, caveats = mask_caveats(per_frame, source, scene.camera.width * scene.camera.height)
     metrics: dict[str, Any] = {
         "recon": summarize_frames(per_frame["recon"]), "nvs": summarize_frames(per_frame["nvs"]),
-        "mask_source": source,
+        "mask_source": source, "mask_coverage": coverage, "psnr_dyn_caveats": caveats,
         "lpips_available": all(s is not None for s in scorers.values()),
         "method": run.config.method, "num_gaussians": run.model.num_gaussians,
+        "run": run_record(run),
         "per_frame": per_frame,
     }
     if video and frames_video:
@@ -155,10 +237,34 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
 
         history_path = run.root / HISTORY_FILE
         history = json.loads(history_path.read_text())["history"] if history_path.is_file() else []
+        record = metrics["run"]
+        run_info = {"preset": record["preset"] or "not recorded (no provenance.json)",
+                    "method": record["method"], "command": record["command"],
+                    "config hash": record["config_hash"], "iterations": record["iterations"],
+                    "training time": _duration(record["train_seconds"]),
+                    "evaluation time": _duration(metrics["eval_seconds"]),
+                    "code version": record["code_version"], "trained with version": record["trained_with_version"],
+                    "PSNR* masks": f"{source} ({_coverage_text(coverage)})"}
+        links = {"resolved config": CONFIG_FILE, "metrics": METRICS_FILE}
+        has_video = video and (run.root / VIDEO_FILE).is_file()
+        if has_video:
+            links["video"] = VIDEO_FILE
         write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.resolve()}",
                      metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
-                     per_frame=per_frame, history=loss_curves(history), panels=panels)
+                     per_frame=per_frame, history=loss_curves(history), panels=panels,
+                     run_info=run_info, caveats=caveats, links=links, video=VIDEO_FILE if has_video else None,
+                     config=_read_json(run.root / CONFIG_FILE).get("config"))
     return metrics
+
+
+def _duration(seconds: float | None) -> str | None:
+    if seconds is None:
+        return None
+    return f"{seconds:.1f} s" if seconds < 120 else f"{seconds / 60:.1f} min ({seconds:.0f} s)"
+
+
+def _coverage_text(coverage: dict[str, float | None]) -> str:
+    return ", ".join(f"{split} {value:.2%} of the pixels" for split, value in coverage.items() if value is not None)
 
 
 def loss_curves(history: list[dict]) -> list[dict]:
@@ -178,5 +284,9 @@ def format_metrics(metrics: dict[str, Any]) -> str:
         m = metrics[split]
         lines.append(f"{split:<7}{m['n_frames']:>7}{fmt(m['psnr']):>8}{fmt(m['ssim'], '.4f'):>8}"
                      f"{fmt(m['lpips_vgg'], '.4f'):>11}{fmt(m['lpips_alex'], '.4f'):>12}{fmt(m['psnr_dyn']):>8}")
-    lines.append(f"PSNR* mask: {metrics['mask_source']}; LPIPS backbones present: {metrics['lpips_available']}")
+    coverage = metrics.get("mask_coverage") or {}
+    covered = f" ({_coverage_text(coverage)})" if coverage else ""
+    lines.append(f"PSNR* mask: {metrics['mask_source']}{covered}; "
+                 f"LPIPS backbones present: {metrics['lpips_available']}")
+    lines += [f"caveat: {caveat}" for caveat in metrics.get("psnr_dyn_caveats") or ()]
     return "\n".join(lines)

@@ -1,9 +1,12 @@
-"""One self-contained HTML evaluation report: metrics table, per-frame PSNR, loss curves, panels.
+"""One self-contained HTML evaluation report: what made the run, metrics and their caveats,
+per-frame PSNR, loss curves, panels.
 
-Everything is inside the one file (plots and images as base64 PNG data URIs, inline CSS, no
-scripts, no external fonts or links), so it can be mailed, archived next to a run, or opened
-offline. Plots are drawn with matplotlib's Agg canvas directly (``matplotlib.figure.Figure``),
-never through ``pyplot``, so no GUI backend is ever touched and the global backend is left alone.
+Everything is inside the one file (plots and images as base64 PNG data URIs, the resolved config
+as text, inline CSS, no scripts, no external fonts or links), so it can be mailed, archived next
+to a run, or opened offline. The only references are relative links to the files beside it in the
+run folder (``config.json``, ``metrics.json``, the video), which work when the folder is opened.
+Plots are drawn with matplotlib's Agg canvas directly (``matplotlib.figure.Figure``), never through
+``pyplot``, so no GUI backend is ever touched and the global backend is left alone.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 import math
 import os
 from pathlib import Path
@@ -27,7 +31,7 @@ METRIC_COLUMNS = (
     ("ssim", "SSIM", "{:.4f}"),
     ("lpips_vgg", "LPIPS (VGG)", "{:.4f}"),
     ("lpips_alex", "LPIPS (Alex)", "{:.4f}"),
-    ("psnr_dyn", "PSNR dynamic (dB)", "{:.2f}"),
+    ("psnr_dyn", "PSNR* (dynamic pixels, dB)", "{:.2f}"),
     ("n_frames", "frames", "{:d}"),
 )
 SPLIT_LABELS = {"recon": "reconstruction (train views)", "nvs": "novel views (test views)"}
@@ -49,6 +53,9 @@ th { background: #f0f0f0; }
 figure { margin: 0; flex: 1 1 0; min-width: 160px; }
 figure img { width: 100%; image-rendering: pixelated; border: 1px solid #ddd; }
 figcaption { text-align: center; font-size: 0.9em; }
+.caveat { background: #fff4d6; border-left: 4px solid #e0a000; padding: 6px 10px; margin: 6px 0; }
+video { max-width: 100%; border: 1px solid #ddd; }
+pre { background: #f6f6f6; padding: 8px; overflow-x: auto; font-size: 0.85em; }
 """
 
 
@@ -148,6 +155,39 @@ def _metrics_section(metrics: Mapping[str, Any]) -> str:
     return (f"<h2>Metrics</h2>\n<table class=\"metrics\"><tr><th>split</th>{head}</tr>\n"
             + "\n".join(rows) + "</table>\n"
             + (f"<ul class=\"meta\">{meta}</ul>\n" if meta else ""))
+
+
+def _relative(href: str) -> str:
+    """``href`` if it names a file beside the report (no scheme, no folder, no parent), else raises."""
+    if not href or "/" in href or "\\" in href or ":" in href or href.startswith("."):
+        raise ValueError(f"report links must name a file beside the report, got {href!r}")
+    return href
+
+
+def _run_section(run_info: Mapping[str, Any], links: Mapping[str, str], video: str | None,
+                 config: Mapping[str, Any] | None) -> str:
+    if not (run_info or links or video or config):
+        return ""
+    rows = "".join(f"<tr><td>{_esc(k)}</td><td>{_esc(_fmt(v))}</td></tr>" for k, v in run_info.items())
+    parts = ["<h2>Run</h2>"]
+    if rows:
+        parts.append(f"<table class=\"run\">{rows}</table>")
+    if links:
+        items = " &middot; ".join(f"<a href=\"{_esc(_relative(href))}\">{_esc(label)} ({_esc(href)})</a>"
+                                  for label, href in links.items())
+        parts.append(f"<p class=\"meta\">files: {items}</p>")
+    if video:
+        name = _esc(_relative(video))
+        parts.append(f"<video controls loop muted preload=\"metadata\" src=\"{name}\">"
+                     f"<a href=\"{name}\">{name}</a></video>")
+    if config is not None:
+        text = json.dumps(config, indent=2, sort_keys=False)
+        parts.append(f"<details><summary>resolved config</summary><pre>{_esc(text)}</pre></details>")
+    return "\n".join(parts) + "\n"
+
+
+def _caveats_section(caveats: Sequence[str]) -> str:
+    return "".join(f"<p class=\"caveat\">{_esc(c)}</p>\n" for c in caveats)
 
 
 def _frame_key(entry: Mapping[str, Any], position: int) -> tuple[int | None, str]:
@@ -279,9 +319,12 @@ def _panels_section(panels: Sequence[Mapping[str, Any]], max_image_width: int | 
 def render_report(*, title: str, metrics: Mapping[str, Any],
                   per_frame: Mapping[str, Sequence[Mapping[str, Any]]],
                   history: Sequence[Mapping[str, Any]], panels: Sequence[Mapping[str, Any]],
-                  max_image_width: int | None = None) -> str:
+                  max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
+                  caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
+                  video: str | None = None, config: Mapping[str, Any] | None = None) -> str:
     """The report's HTML text (see :func:`write_report`)."""
-    body = (_metrics_section(metrics) + _per_frame_section(per_frame) + _history_section(history)
+    body = (_run_section(run_info or {}, links or {}, video, config) + _metrics_section(metrics)
+            + _caveats_section(caveats) + _per_frame_section(per_frame) + _history_section(history)
             + _panels_section(panels, max_image_width))
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
@@ -291,7 +334,9 @@ def render_report(*, title: str, metrics: Mapping[str, Any],
 def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, Any],
                  per_frame: Mapping[str, Sequence[Mapping[str, Any]]],
                  history: Sequence[Mapping[str, Any]], panels: Sequence[Mapping[str, Any]],
-                 max_image_width: int | None = None) -> Path:
+                 max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
+                 caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
+                 video: str | None = None, config: Mapping[str, Any] | None = None) -> Path:
     """Write one self-contained HTML report to ``path`` (atomically); returns the path.
 
     ``metrics``: ``{"recon": {...}, "nvs": {...}, "mask_source": str, "lpips_available": bool}``,
@@ -303,7 +348,13 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
     ``panels``: list of ``{"name": str, <label>: uint8 (H, W, 3) image, ...}`` in display order
     (e.g. ``gt``, ``render``, ``error``, ``depth``, ``mask``, ``radar``); non-image values are
     shown as a caption. ``max_image_width`` downscales wider panel images to keep the file small.
+    ``run_info``: what made the run (preset, method, config hash, times, ...), shown first as a
+    table; ``caveats``: sentences shown highlighted under the metrics (e.g. PSNR* on near-empty
+    masks); ``links``: label -> name of a file beside the report (``config.json``); ``video``: the
+    name of a video beside the report, played in the page; ``config``: the resolved config, shown
+    as JSON in a collapsed block.
     """
     text = render_report(title=title, metrics=metrics, per_frame=per_frame, history=history,
-                         panels=panels, max_image_width=max_image_width)
+                         panels=panels, max_image_width=max_image_width, run_info=run_info,
+                         caveats=caveats, links=links, video=video, config=config)
     return atomic_write_text(path, text)

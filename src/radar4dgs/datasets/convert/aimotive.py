@@ -272,6 +272,8 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
         raise SceneError(src, "missing folder (the aiMotive sequence)")
     if not 0 < scale <= 1:
         raise ValueError(f"--scale must be in (0, 1], got {scale}")
+    if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
+        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
     config = radar_config or aimotive_radar_config()
     seq = _read_sequence(src)
 

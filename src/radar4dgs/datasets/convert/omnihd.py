@@ -331,6 +331,8 @@ def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0,
     doc lists the tables and keys read and what is kept and dropped.
     """
     root, out = Path(root), Path(out)
+    if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
+        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
     tables = _check_arguments(root, clip, start, frames, width, height, version, lidar, lidar_columns)
 
     sample_data, sd_path = _read_table(tables, "sample_data")

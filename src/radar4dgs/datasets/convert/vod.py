@@ -47,7 +47,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Annotated, Literal, Optional
 
 import cv2
 import numpy as np
@@ -335,6 +335,8 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
     """Convert VoD frames ``frames`` ("A:B", frames A .. B-1, one sequence) into a scene folder at
     ``out`` and return ``out``. Images keep their size unless ``width`` and ``height`` are given."""
     root, out = Path(root), Path(out)
+    if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
+        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
     first_number, end_number, folders = _check_arguments(root, frames, width, height, frame_period, max_speed)
     numbers = _frame_numbers(folders["velodyne"], first_number, end_number, frames)
     names = [f"{n:05d}" for n in numbers]
@@ -423,10 +425,10 @@ class ConvertVodCommand:
     out: tyro.conf.Positional[Path]
     # Frames A:B, i.e. A .. B-1 (5-digit frame numbers, inside one sequence).
     frames: str
-    # Output image width (pixels); default keeps the image size.
-    width: Optional[int] = None
-    # Output image height (pixels); default keeps the image size.
-    height: Optional[int] = None
+    # Output image width (pixels).
+    width: Annotated[Optional[int], tyro.conf.arg(help_behavior_hint="(default: the image size)")] = None
+    # Output image height (pixels).
+    height: Annotated[Optional[int], tyro.conf.arg(help_behavior_hint="(default: the image size)")] = None
     # Convert lidar/ from lidar/training/velodyne: when present (auto), required (on), or never (off).
     lidar: Literal["auto", "on", "off"] = "auto"
     # Sign applied to v_r and v_r_comp: auto checks it against the poses with the ego-motion fit.
