@@ -272,6 +272,10 @@ class TrainConfig:
     # sequence either side; synthetic small seed 1, novel-view PSNR* 22.74 / 23.27 / 23.51 / 23.39
     # dB at 0.2 / 0.1 / 0.05 / 0.025 (chosen on that benchmark seed).
     dynamic_lifespan: float = 0.05
+    # Ours: dynamic Gaussians whose object the field moves faster than this (px per frame at a
+    # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
+    # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
+    dynamic_lifespan_reference_px: float = 0.0
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).
@@ -342,6 +346,8 @@ class TrainConfig:
                              f"{o.stage2_start}, {o.stage3_start}")
         if self.dynamic_lifespan < 0:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
+        if self.dynamic_lifespan_reference_px < 0:
+            raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:
             raise ValueError(f"optim.dropout must lie in [0, 1), got {o.dropout}")
         for name in ("resolution_scale", "coarse_scale"):

@@ -3,7 +3,6 @@ the dynamic Gaussians in its canonical space, life spans, and the Deformable-GS 
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -57,16 +56,56 @@ def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformat
     return GaussianSet.from_points(canonical, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
 
 
-def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float,
+def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float | np.ndarray,
                    **motion: Tensor) -> GaussianSet:
     """``gaussians`` plus a life peak at the time of the frame each was seen in and the initial
-    life span ``lifespan`` (normalised time; PVG, bspline, ours' dynamic set), and any other
-    motion parameters."""
+    life span ``lifespan`` (normalised time, one for all or (N,) per Gaussian; PVG, bspline, ours'
+    dynamic set), and any other motion parameters."""
     n = len(gaussians)
     like = gaussians.params["means"]
     tau = torch.as_tensor(np.asarray(frame_times, dtype=np.float64)).to(like)
-    log_lifespan = torch.full((n,), math.log(lifespan)).to(like)
+    log_lifespan = torch.as_tensor(np.log(np.broadcast_to(np.asarray(lifespan, dtype=np.float64), (n,)))).to(like)
     return gaussians.with_motion(tau=tau, log_lifespan=log_lifespan, **motion)
+
+
+@torch.no_grad()
+def image_speeds(world: np.ndarray, frames: np.ndarray, times: np.ndarray, deformation: DeformationField,
+                 scene: Scene) -> np.ndarray:
+    """(M,) how far (px per frame) the field moves each of the (M, 3) ``world`` points, seen in
+    frame ``frames`` (M,), over one frame interval, in that frame's camera (the object's own motion,
+    without the ego's)."""
+    step = float(np.min(np.diff(times))) if len(times) > 1 else 1.0
+    ref = next(deformation.parameters())
+    speeds = np.zeros(len(world))
+    for frame in np.unique(frames):
+        rows = frames == frame
+        t = float(times[frame])
+        to = t + step if t + step <= 1.0 else t - step
+        x = torch.as_tensor(world[rows], dtype=ref.dtype, device=ref.device)
+        moved = deformation.warp(x, t, to).double().cpu().numpy()
+        uv, z = scene.camera.project(_in_camera(scene, int(frame), world[rows]))
+        uv_moved, z_moved = scene.camera.project(_in_camera(scene, int(frame), moved))
+        ok = (z > 0.1) & (z_moved > 0.1)
+        speeds[np.flatnonzero(rows)[ok]] = np.linalg.norm(uv_moved[ok] - uv[ok], axis=1)
+    return speeds
+
+
+def _in_camera(scene: Scene, frame: int, points: np.ndarray) -> np.ndarray:
+    w2c = scene.world_to_camera(frame)
+    return points @ w2c[:3, :3].T + w2c[:3, 3]
+
+
+def speed_scaled_lifespans(speeds: np.ndarray, base: float, reference_px: float, frame_step: float) -> np.ndarray:
+    """(M,) life spans: ``base`` for points slower than ``reference_px`` per frame, shortened in
+    proportion to their speed beyond it, never below one frame (``frame_step``, normalised time).
+
+    Why: a dynamic Gaussian is one frame's copy of its object, drawn at other times through the
+    field; the field's error grows with the object's speed, so a fast object's copies, drawn over
+    the default span of a few frames, overlay as a smear along its path. One frame is the floor so
+    a held-out time between two training frames still sees both neighbours' copies.
+    """
+    scale = np.minimum(1.0, reference_px / np.maximum(speeds, 1e-9))
+    return np.clip(base * scale, min(frame_step, base), base)
 
 
 def offset_field(config: TrainConfig, points: np.ndarray, device, dtype) -> OffsetField:

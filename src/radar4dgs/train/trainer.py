@@ -49,9 +49,11 @@ from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.model_init import (
     dynamic_gaussians,
     gaussian_kwargs,
+    image_speeds,
     new_field,
     offset_field,
     scene_extent,
+    speed_scaled_lifespans,
     with_lifespans,
 )
 from radar4dgs.train.objective import image_losses, motion_losses, total_loss
@@ -187,8 +189,16 @@ class Trainer:
         points = self._initial_points()
         dynamic = dynamic_gaussians(points, self.times, state.model.field, self.config, self.device, self.dtype)
         if self.config.dynamic_lifespan > 0:
-            dynamic = with_lifespans(dynamic, self.times[points["frame"][points["dynamic"]]],
-                                     self.config.dynamic_lifespan)
+            frames = points["frame"][points["dynamic"]]
+            lifespan: float | np.ndarray = self.config.dynamic_lifespan
+            if self.config.dynamic_lifespan_reference_px > 0 and len(frames):
+                speeds = image_speeds(points["points"][points["dynamic"]], frames, self.times, state.model.field,
+                                      self.scene)
+                reference = self.config.dynamic_lifespan_reference_px * self.scene.camera.width / 320
+                lifespan = speed_scaled_lifespans(speeds, lifespan, reference, float(np.min(np.diff(self.times))))
+                self.log(f"stage 2: dynamic life spans {lifespan.min():.3f}-{lifespan.max():.3f} "
+                         f"(median speed {np.median(speeds):.1f} px per frame)")
+            dynamic = with_lifespans(dynamic, self.times[frames], lifespan)
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
