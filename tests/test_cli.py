@@ -66,15 +66,18 @@ def test_two_word_commands_match_the_longest_name(echo, capsys):
     assert capsys.readouterr().out.strip() == "/q small 1 0.1"
 
 
-def test_required_positional_stays_required(echo):
+def test_required_positional_stays_required(echo, capsys):
+    assert cli.main(["echo", "--preset", "tiny"]) == 2
+    assert capsys.readouterr().err == "radar4dgs echo: Missing from radar4dgs echo: PATH where (required) " \
+                                      "(radar4dgs echo --help)\n"
     with pytest.raises(SystemExit) as info:
-        cli.main(["echo", "--preset", "tiny"])
+        cli.build_command("echo", ["--preset", "tiny"])
     assert info.value.code == 2
 
 
-def test_unknown_preset_is_refused(echo):
-    with pytest.raises(SystemExit, match="unknown preset 'huge'"):
-        cli.main(["echo", "/o", "--preset", "huge"])
+def test_unknown_preset_is_refused(echo, capsys):
+    assert cli.main(["echo", "/o", "--preset", "huge"]) == 2
+    assert "radar4dgs echo: --preset: unknown preset 'huge'" in capsys.readouterr().err
 
 
 def test_usage_and_unknown_command(capsys):
@@ -171,7 +174,24 @@ def test_converters_refuse_an_existing_output_before_reading_anything(args, tmp_
     assert cli.main(args) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{tmp_path / 'OUT'}: already exists" in err, err
-    assert "%|" not in err
+    assert "pass --force to overwrite it" in err and "%|" not in err
+    assert cli.build_command(args[0] + " " + args[1], args[2:] + ["--force"]).force
+
+
+def test_synth_keeps_the_same_scene_refuses_another_and_force_overwrites(tmp_path, capsys):
+    out = str(tmp_path / "scene")
+    base = ["synth", out, "--preset", "tiny", "--scene.num-frames", "2"]
+    assert cli.main([*base, "--seed", "1"]) == 0
+    capsys.readouterr()
+    assert cli.main([*base, "--seed", "1"]) == 0  # the very scene: left as it is
+    assert "holds this scene already (same preset, seed and config)" in capsys.readouterr().out
+    assert cli.main([*base, "--seed", "2"]) == 1
+    assert capsys.readouterr().err == (f"radar4dgs synth: {out}: already exists (made with preset 'tiny', seed 1, "
+                                       f"not preset 'tiny', seed 2); pass --force to overwrite it\n")
+    assert cli.main([*base, "--seed", "1", "--scene.fps", "5"]) == 1
+    assert "made with another generator config: fps: 10.0 != 5.0" in capsys.readouterr().err
+    assert cli.main([*base, "--seed", "2", "--force"]) == 0
+    assert "seed 2" in capsys.readouterr().out
 
 
 def test_warnings_print_one_line_without_the_source_line():

@@ -8,9 +8,11 @@ command module imports its heavy dependencies (torch, OpenCV) inside ``run()``, 
 --help`` and ``radar4dgs COMMAND --help`` answer without importing torch.
 
 A user error (a missing or malformed file, an existing output, a bad value: ``ValueError`` and
-``OSError`` subclasses such as :class:`radar4dgs.io.SceneError`) ends the command with one line
-``radar4dgs COMMAND: <file>: <problem>`` on stderr and exit status 1; ``--debug`` (anywhere on the
-line) shows the traceback instead. Warnings print as one line each, without the source line.
+``OSError`` subclasses such as :class:`radar4dgs.io.SceneError`, and the classes a command names
+in its ``USER_ERRORS``) ends the command with one line ``radar4dgs COMMAND: <file>: <problem>`` on
+stderr and exit status 1; a bad option ends it with one line ``radar4dgs COMMAND: <problem>`` and
+exit status 2. ``--debug`` (anywhere on the line) shows the traceback, or tyro's full message,
+instead. Warnings print as one line each, without the source line.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import io
+import re
 import sys
 import warnings
 from typing import Iterator, Sequence
@@ -145,18 +149,72 @@ def _default_instance(cls: type, preset_name: str):
     return cls(**values)
 
 
-def build_command(name: str, args: Sequence[str]):
-    """Parse ``args`` into an instance of command ``name`` (exposed for tests)."""
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def parse_error_line(text: str) -> str:
+    """tyro's boxed parse error (a title, the problem, a rule, the option's help; drawn with UTF-8
+    box characters, or with dashes where stdout is not UTF-8) as one line: the problem above the
+    first rule, or the title where the box has nothing there."""
+    lines = [line.strip().strip("│╰╯").strip() for line in _ANSI.sub("", text).splitlines()]
+    lines = [line for line in lines if line]
+    if not lines:
+        return "bad options"
+
+    def is_rule(line: str) -> bool:
+        return set(line) <= set("─-")
+
+    title, rest = lines[0].strip("╭╮─ "), lines[1:]
+    if rest and is_rule(rest[0]):  # the dashes under the title of a box drawn without UTF-8
+        rest = rest[1:]
+    problem = []
+    for line in rest:
+        if is_rule(line):
+            break
+        problem.append(line)
+    return " ".join(problem) or title
+
+
+def build_command(name: str, args: Sequence[str], debug: bool = True):
+    """Parse ``args`` into an instance of command ``name`` (exposed for tests). A bad option ends
+    with ``SystemExit(2)``; unless ``debug``, after one line on stderr instead of tyro's box."""
     cls = _command_class(name)
     default = None
     if hasattr(cls, "PRESET_FIELDS"):
         chosen = _preset_from_args(args) or next(
             f.default for f in dataclasses.fields(cls) if f.name == "preset")
         if chosen not in PRESET_NAMES:
-            raise SystemExit(f"radar4dgs {name}: unknown preset {chosen!r}; choose one of {list(PRESET_NAMES)}")
+            raise SystemExit(f"radar4dgs {name}: --preset: unknown preset {chosen!r}; "
+                             f"choose one of {list(PRESET_NAMES)}")
         default = _default_instance(cls, chosen)
-    return tyro.cli(cls, args=list(args), prog=f"radar4dgs {name}", default=default,
-                    description=(cls.__doc__ or "").strip())
+
+    def parse():
+        return tyro.cli(cls, args=list(args), prog=f"radar4dgs {name}", default=default,
+                        description=(cls.__doc__ or "").strip())
+
+    if debug:
+        return parse()
+    box = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(box):
+            command = parse()
+        sys.stderr.write(box.getvalue())  # anything tyro said on a successful parse (a warning)
+        return command
+    except SystemExit as exc:
+        if exc.code in (0, None):
+            sys.stderr.write(box.getvalue())
+            raise
+        raise SystemExit(f"radar4dgs {name}: {parse_error_line(box.getvalue())} "
+                         f"(radar4dgs {name} --help)") from None
+
+
+def _is_user_error(exc: BaseException, cls: type | None) -> bool:
+    """Whether ``exc`` is a user error: one of :data:`USER_ERRORS`, or of the classes the command
+    names in ``USER_ERRORS`` (dotted names, so that naming them imports nothing)."""
+    if isinstance(exc, USER_ERRORS):
+        return True
+    names = set(getattr(cls, "USER_ERRORS", ()))
+    return any(f"{c.__module__}.{c.__qualname__}" in names for c in type(exc).__mro__)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -182,10 +240,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     with _one_line_warnings():
         try:
-            command = build_command(name, rest)
+            command = build_command(name, rest, debug)
+        except SystemExit as exc:  # a bad option: one line (build_command), exit status 2
+            if exc.code in (0, None) or not isinstance(exc.code, str):
+                raise
+            print(exc.code, file=sys.stderr)
+            return 2
+        try:
             result = command.run()
-        except USER_ERRORS as exc:
-            if debug:
+        except Exception as exc:
+            if debug or not _is_user_error(exc, type(command)):
                 raise
             print(f"radar4dgs {name}: {exc}", file=sys.stderr)
             return 1

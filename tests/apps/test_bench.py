@@ -15,9 +15,9 @@ from radar4dgs.cli import main
 
 
 def test_unknown_method_is_refused_listing_the_methods(tmp_path, capsys):
-    with pytest.raises(SystemExit):
-        main(["bench", "--synth-seeds", "1", "--methods", "ours", "nope", "--out", str(tmp_path)])
-    assert "nope" in capsys.readouterr().err
+    assert main(["bench", "--synth-seeds", "1", "--methods", "ours", "nope", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "invalid choice 'nope' for argument '--methods'" in err
     assert BenchCommand(synth_seeds=(1,), methods=("ours", "nope"), out=tmp_path).run() == 2
     err = capsys.readouterr().err
     assert "unknown method(s) ['nope']" in err and "'ours-gt-masks'" in err
@@ -134,7 +134,51 @@ def test_a_cell_trained_with_other_settings_is_not_reused(tmp_path, fake_trainin
                        tmp_path / "out", "tiny", iterations=20, threads=2, progress=False, log=lambda line: None)
     (cell,) = result["cells"]
     assert cell["status"] == "failed" and "optim.iterations: 5 != 20" in cell["error"]
+    assert "pass --force to retrain it" in cell["error"]
     assert fake_training.calls == []
+    # --force: the cell is deleted and trained again with the bench's config.
+    (run / "run.json").write_text("{}")
+    result = run_bench([BenchScene("a", tmp_path / "a", tmp_path / "a" / "prepared")], ["static"],
+                       tmp_path / "out", "tiny", iterations=20, threads=2, progress=False, log=lambda line: None,
+                       force=True)
+    (cell,) = result["cells"]
+    assert cell["status"] == "ok" and cell["action"] == "trained"
+    assert fake_training.calls == [("train", "a", "static", False, 20, 2), ("eval", "a", "static")]
+    assert not (run / "config.json").exists()  # the old run is gone (the fake trainer writes none)
+
+
+def test_a_synthetic_scene_of_another_preset_is_refused_then_made_again_with_force(tmp_path, fake_training,
+                                                                                 monkeypatch):
+    import radar4dgs.apps.prepare as prepare
+    import radar4dgs.datasets.synth as synth
+    from radar4dgs.apps.bench_spec import BenchError, resolve_scenes
+
+    made = []
+
+    def fake_synthesize(config, out, overwrite=False, progress=True, preset=None):
+        made.append((config.seed, preset))
+        out.mkdir(parents=True, exist_ok=True)
+        from radar4dgs.datasets.synth.generate import config_record
+
+        (out / "scene.json").write_text(json.dumps({"source": {"dataset": "synthetic", "seed": config.seed,
+                                                               "preset": preset},
+                                                    "synthetic": {"config": config_record(config)}}))
+        return out
+
+    monkeypatch.setattr(synth, "synthesize", fake_synthesize)
+    monkeypatch.setattr(prepare, "run_prepare", lambda *args, **kwargs: {})
+    out = tmp_path / "out"
+    resolve_scenes((), (1,), "tiny", out, log=lambda line: None)
+    assert made == [(1, "tiny")]
+    resolve_scenes((), (1,), "tiny", out, log=lambda line: None)  # the same preset: reused
+    assert made == [(1, "tiny")]
+    (out / "runs" / "seed1" / "ours").mkdir(parents=True)
+    with pytest.raises(BenchError, match=r"was made with preset 'tiny', seed 1, not preset 'small', seed 1; "
+                                         r"pass --force"):
+        resolve_scenes((), (1,), "small", out, log=lambda line: None)
+    resolve_scenes((), (1,), "small", out, log=lambda line: None, force=True)
+    assert made == [(1, "tiny"), (1, "small")]
+    assert not (out / "runs" / "seed1").exists()  # its cells were trained on the old scene
 
 
 def pool_runner(spec):

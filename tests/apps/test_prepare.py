@@ -51,3 +51,17 @@ def test_scene_without_a_depth_source_fails_clearly(tmp_path, capsys):
                  "--config.depth.model", str(tmp_path / "no-such-model")]) == 1
     err = capsys.readouterr().err
     assert "no-such-model does not exist" in err and "priors/mono_depth" in err
+
+
+def test_a_stage_alone_refuses_earlier_stages_of_another_config(tmp_path, capsys):
+    root = write_tiny_scene(tmp_path / "scene", frames=3)
+    assert main(["prepare", str(root), "--preset", "tiny", "--only", "radar", "--quiet"]) == 0
+    capsys.readouterr()
+    # depth alone, asked with another radar config than the radar stage was made with: refused in
+    # one line naming the stage and what differs, before anything runs.
+    assert main(["prepare", str(root), "--preset", "tiny", "--only", "depth", "--quiet",
+                 "--config.radar.max-iterations", "7"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{root / 'prepared' / 'radar'}: prepared with another config" in err
+    assert "max_iterations: 200 != 7" in err and "add radar to --only" in err
+    assert not (root / "prepared" / "depth").exists()

@@ -155,3 +155,29 @@ def test_a_scene_without_gt_depth_is_scored_on_what_it_has(tiny_trained_run, tmp
     captured = capsys.readouterr()
     assert json.loads(captured.out)["skipped"] == report["skipped"]
     assert "radar4dgs frontend-eval: skipped flow: no ground truth" in captured.err
+
+
+AIMOTIVE = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "aimotive-night"
+
+
+@pytest.mark.skipif(not AIMOTIVE.is_dir(), reason="shared aiMotive fixture not present")
+def test_frontend_eval_on_the_converted_aimotive_clip(tmp_path, capsys):
+    # A real recording: no gt/depth, gt/sky_mask, gt/dynamic_mask or gt/flow, poses from its own
+    # radar. frontend-eval exits 0, scores the radar (labels from the dataset's boxes) and says why
+    # the other sections are skipped: no ground truth, which preparing them would not change.
+    scene = tmp_path / "aimotive"
+    assert main(["convert", "aimotive", str(AIMOTIVE), str(scene), "--scale", "0.25", "--quiet"]) == 0
+    assert main(["prepare", str(scene), "--preset", "tiny", "--only", "radar", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["frontend-eval", str(scene), "--json", str(tmp_path / "frontend.json")]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((tmp_path / "frontend.json").read_text())
+    radar = report["radar"]
+    assert radar["frames"] == radar["ok_frames"] == 50
+    assert radar["ego_velocity_rmse"] is None  # the poses came from this radar: no independent truth
+    assert 0.0 <= radar["dynamic_precision"] <= 1.0 and 0.0 <= radar["dynamic_recall"] <= 1.0
+    assert radar["static_residual_median"] < 0.5
+    assert any("integrated from the radar itself" in note for note in radar["notes"])
+    assert set(report["skipped"]) == {"depth", "masks", "flow"}
+    assert all(reason.startswith("no ground truth: the scene has") for reason in report["skipped"].values())
+    assert "radar.dynamic_precision" in printed and "depth skipped" in printed

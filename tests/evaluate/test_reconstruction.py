@@ -126,6 +126,43 @@ def test_psnr_star_on_near_empty_masks_is_flagged(trained, tmp_path, capsys):
     assert "<video" not in report  # --no-video: no video to link
 
 
+def test_psnr_star_is_flagged_when_the_trained_masks_miss_the_moving_pixels(trained, tmp_path, capsys):
+    # The run trained on predicted masks (the tiny preset's mask_source); here they are empty, so
+    # they find none of the ground-truth dynamic pixels: PSNR* (on the gt masks) is flagged in
+    # metrics.json, in the printed table and in the report.
+    from radar4dgs.io.scene import read_scene
+
+    scene = read_scene(trained / "scene")
+    prepared = tmp_path / "prepared"
+    shutil.copytree(trained / "scene" / "prepared", prepared)
+    for mask in (prepared / "masks").glob("*.png"):
+        Image.fromarray(np.zeros((scene.camera.height, scene.camera.width), np.uint8)).save(mask)
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained / "run", run_dir, ignore=shutil.ignore_patterns("renders", "*.mp4", "report.html"))
+    (run_dir / "run.json").write_text(json.dumps({"scene": str(trained / "scene"), "prepared": str(prepared)}))
+    assert main(["eval", str(run_dir), "--no-video", "--no-lpips"]) == 0
+    printed = capsys.readouterr().out
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["mask_source"] == "gt" and metrics["run"]["iterations"] == 20
+    assert metrics["predicted_mask_recall"] == {"recon": 0.0, "nvs": 0.0}
+    assert metrics["psnr_dyn_flagged"] == {"recon": True, "nvs": True}
+    flagged = [c for c in metrics["psnr_dyn_caveats"] if "find only 0.0% of the ground-truth dynamic pixels" in c]
+    assert [c.split(":")[0] for c in flagged] == ["PSNR* (recon)", "PSNR* (nvs)"]
+    assert "caveat: PSNR* (nvs): the predicted dynamic masks the run trained on" in printed
+    report = (run_dir / "report.html").read_text()
+    assert "find only 0.0% of the ground-truth dynamic pixels" in report
+    assert "<td>predicted masks&#x27; recall of the gt dynamic pixels</td><td>recon 0.0%, nvs 0.0%</td>" in report
+    assert report.count("(flagged: see the caveats)") == 2
+
+    # With the masks it was trained on (which find the moving cars), nothing is flagged.
+    (run_dir / "run.json").write_text(json.dumps({"scene": str(trained / "scene"),
+                                                  "prepared": str(trained / "scene" / "prepared")}))
+    metrics = evaluate_run(run_dir, lpips=False, video=False, report=False, progress=False)
+    assert all(value > 0.5 for value in metrics["predicted_mask_recall"].values())
+    assert metrics["psnr_dyn_flagged"] == {"recon": False, "nvs": False}
+    assert not any("find only" in c for c in metrics["psnr_dyn_caveats"])
+
+
 def test_missing_model_is_named(tmp_path):
     (tmp_path / "run").mkdir()
     with pytest.raises(FileNotFoundError, match="run.json"):

@@ -6,11 +6,10 @@ import base64
 import html
 import io
 import re
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
+from _browser import chromium_or_skip, headless
 from PIL import Image
 
 from radar4dgs.evaluate.report import write_report
@@ -155,15 +154,14 @@ def test_max_image_width_downscales(tmp_path):
     assert sizes == [(50, 15)] * 4
 
 
-@pytest.mark.skipif(shutil.which("chromium") is None,
-                    reason="chromium not installed (apt-get install -y chromium) - headless render check skipped")
 def test_report_renders_in_headless_chromium(report, tmp_path):
+    # Skips without Chromium, except in CI (RADAR4DGS_REQUIRE_BROWSER=1, tests/evaluate/_browser.py);
+    # the report of a real run is checked in test_report_browser.py.
+    chromium = chromium_or_skip()
     path, _ = report
     shot = tmp_path / "shot.png"
-    command = ["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-               "--hide-scrollbars", f"--user-data-dir={tmp_path / 'profile'}",
-               f"--screenshot={shot}", "--window-size=1200,1600", path.resolve().as_uri()]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    result = headless(chromium, tmp_path / "profile", f"--screenshot={shot}", "--window-size=1200,1600",
+                      path.resolve().as_uri(), timeout=60)
     assert shot.is_file(), f"no screenshot (rc {result.returncode}): {result.stderr[-2000:]}"
     pixels = np.asarray(Image.open(shot).convert("RGB"))
     assert pixels.shape == (1600, 1200, 3)

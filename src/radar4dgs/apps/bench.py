@@ -3,8 +3,9 @@
 Each cell (scene, method) is an ordinary run folder, ``OUT/runs/<scene>/<method>/``, trained with
 the method's :func:`radar4dgs.train.variants.variant_config` and evaluated without video or report.
 The grid is resumable: a cell with ``metrics.json`` is reused, one with ``model.pt`` is only
-evaluated, one with a checkpoint resumes training. A cell that raises is recorded and the grid
-goes on. Outputs, rewritten atomically:
+evaluated, one with a checkpoint resumes training, each only when its ``config.json`` is the
+cell's config; a cell trained with another config fails saying what differs (``--force``
+retrains it). A cell that raises is recorded and the grid goes on. Outputs, rewritten atomically:
 
 - ``OUT/bench.json``: the bench's settings, every cell (status, seconds, metrics summary or error)
   and the per-method means; rewritten after every cell.
@@ -14,7 +15,9 @@ goes on. Outputs, rewritten atomically:
   per-scene dots.
 
 With ``--synth-seeds`` the synthetic scenes are made and prepared first, into
-``OUT/scenes/seed<N>/{scene,prepared}`` (reused when present).
+``OUT/scenes/seed<N>/{scene,prepared}``, reused when made with the same preset and generator
+config; a scene made with another stops the bench saying what differs (``--force`` makes it
+again and retrains its cells).
 """
 
 from __future__ import annotations
@@ -90,13 +93,15 @@ def bench_payload(config: Mapping[str, Any], specs: Sequence[CellSpec], records:
 def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, preset_name: str = "small",
               iterations: int | None = None, jobs: int = 1, threads: int | None = None, lpips: bool = True,
               progress: bool = True, runner: Callable[[CellSpec], Mapping[str, Any]] | None = None,
-              log: Callable[[str], None] = print, settings: Mapping[str, Any] | None = None) -> dict[str, Any]:
+              log: Callable[[str], None] = print, settings: Mapping[str, Any] | None = None,
+              force: bool = False) -> dict[str, Any]:
     """Run the grid ``scenes`` x ``methods`` into ``out`` and write bench.json (after every cell),
     table.md, table.csv and ablation.png (at the end, also when interrupted); returns bench.json.
 
     ``runner`` (default :func:`run_cell`) brings one cell to its metrics; ``threads`` (default
     :func:`default_threads`) is each job's torch thread count; ``settings`` (nested TrainConfig
-    fields, :func:`parse_overrides`) change every cell's config before its method's own fields.
+    fields, :func:`parse_overrides`) change every cell's config before its method's own fields;
+    ``force`` retrains the cells whose run folder was trained with another configuration.
     """
     methods = check_methods(methods)
     if jobs < 1:
@@ -111,7 +116,7 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
         raise BenchError(str(exc)) from exc
     out = Path(out)
     specs = [CellSpec(scene.label, method, scene.scene, scene.prepared, out / RUNS_DIR / scene.label / method,
-                      preset_name, overrides, lpips, progress and jobs == 1)
+                      preset_name, overrides, lpips, progress and jobs == 1, force)
              for scene in scenes for method in methods]
     # Seconds of cells this call only reuses come from the previous bench.json.
     previous = previous_cells(out / BENCH_FILE)
@@ -168,6 +173,10 @@ class BenchCommand:
     lpips: bool = True
     # Hide the training and evaluation progress bars (they are always hidden with --jobs > 1).
     quiet: bool = False
+    # Overwrite: retrain the cells in OUT trained with another configuration, and make again the synthetic
+    # scenes made with another preset (and retrain their cells). Without it such a cell fails, saying what
+    # differs, and such a scene stops the bench.
+    force: bool = False
 
     def run(self) -> int:
         def log(line: str) -> None:
@@ -175,10 +184,10 @@ class BenchCommand:
 
         try:
             methods = check_methods(self.methods)
-            scenes = resolve_scenes(self.scenes, self.synth_seeds, self.synth_preset, self.out, log)
+            scenes = resolve_scenes(self.scenes, self.synth_seeds, self.synth_preset, self.out, log, self.force)
             settings = parse_overrides(self.set)
             result = run_bench(scenes, methods, self.out, self.preset, self.iterations, self.jobs, self.threads,
-                               self.lpips, progress=not self.quiet, log=log, settings=settings)
+                               self.lpips, progress=not self.quiet, log=log, settings=settings, force=self.force)
         except BenchError as exc:
             print(f"radar4dgs bench: {exc}", file=sys.stderr)
             return 2

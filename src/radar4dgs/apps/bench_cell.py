@@ -30,14 +30,13 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
 
     action: "skipped" (metrics.json present), "evaluated" (model.pt present), "resumed" (from
     checkpoints/last.pt) or "trained". A run folder trained with another configuration than the
-    bench's (other iterations, say) raises: its numbers would not belong in this table.
+    bench's (other iterations, say) raises, saying what differs: its numbers would not belong in
+    this table; with ``spec.force`` it is deleted and trained again.
     """
-    from radar4dgs.config import read_config_dict
+    from radar4dgs.apps.reuse import first_differences, remove_run, run_differences
     from radar4dgs.evaluate.reconstruction import evaluate_run, write_provenance
-    from radar4dgs.model.config import TrainConfig
-    from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
+    from radar4dgs.model.run import CHECKPOINT_DIR, LAST_CHECKPOINT, MODEL_FILE
     from radar4dgs.train.fit_motion import torch_threads
-    from radar4dgs.train.run_config import run_config_difference
     from radar4dgs.train.trainer import train_run
 
     config = variant_config(spec.preset, spec.method, **spec.overrides)
@@ -50,11 +49,13 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
         state = "resumed"
     else:
         state = "trained"
-    if state != "trained" and (run / CONFIG_FILE).is_file():
-        changed = run_config_difference(read_config_dict(TrainConfig, run / CONFIG_FILE), config)
-        if changed:
-            raise BenchError(f"{run}: trained with another configuration ({'; '.join(changed[:4])}); "
-                             "delete the folder or bench into another --out")
+    changed = run_differences(run, config) if state != "trained" else None
+    if changed and spec.force:
+        remove_run(run)
+        state = "trained"
+    elif changed:
+        raise BenchError(f"{run}: trained with another configuration ({first_differences(changed, 4)}); "
+                         "pass --force to retrain it, or bench into another --out")
     if state == "skipped":
         return {"action": state, "metrics": cell_summary(json.loads((run / METRICS_FILE).read_text()))}
     if state in ("trained", "resumed"):

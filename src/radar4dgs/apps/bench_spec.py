@@ -42,6 +42,8 @@ class CellSpec:
     overrides: Mapping[str, Any]
     lpips: bool
     progress: bool
+    # Retrain a cell whose run folder was trained with another configuration (else it fails).
+    force: bool = False
 
 
 # --- scenes and methods ------------------------------------------------------------------------
@@ -132,18 +134,32 @@ def scene_labels(paths: Sequence[Path], reserved: Sequence[str] = ()) -> list[st
             depth[i] += 1
 
 
-def synth_scene(seed: int, preset_name: str, root: Path, log: Callable[[str], None]) -> BenchScene:
+def synth_scene(seed: int, preset_name: str, root: Path, log: Callable[[str], None], force: bool = False,
+                runs: Path | None = None) -> BenchScene:
     """Synthesize and prepare seed ``seed`` into ``root/seed<N>/{scene,prepared}``; a scene that
-    exists is reused and only its stale prepare stages rerun."""
+    exists is reused and only its stale prepare stages rerun. A scene made with another preset or
+    generator config raises a BenchError saying what differs; with ``force`` it is made again and
+    the cells trained on it (``runs``, the scene's folder of run folders) are deleted."""
+    import shutil
+
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.apps.reuse import scene_conflict
     from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.datasets.synth.generate import config_record
 
     scene = root / f"seed{seed}" / "scene"
     prepared = root / f"seed{seed}" / "prepared"
-    if not (scene / "scene.json").is_file():
+    config = preset(SynthConfig, preset_name, seed=seed)
+    conflict = scene_conflict(scene, preset_name, seed, config_record(config))
+    if conflict and not force:
+        raise BenchError(f"{conflict}; pass --force to make it again (and retrain its cells), "
+                         f"or bench into another --out")
+    if conflict or not (scene / "scene.json").is_file():
+        if conflict and runs is not None and runs.is_dir():
+            log(f"--force: deleting the cells trained on the earlier seed {seed} scene ({runs})")
+            shutil.rmtree(runs)
         log(f"synthesizing seed {seed} ({preset_name}) -> {scene}")
-        synthesize(preset(SynthConfig, preset_name, seed=seed), scene, overwrite=True, progress=False,
-                   preset=preset_name)
+        synthesize(config, scene, overwrite=True, progress=False, preset=preset_name)
     status = run_prepare(scene, prepared, preset(PrepareConfig, preset_name), progress=False)
     ran = [stage for stage, state in status.items() if state == "ran"]
     if ran:
@@ -152,9 +168,10 @@ def synth_scene(seed: int, preset_name: str, root: Path, log: Callable[[str], No
 
 
 def resolve_scenes(scene_dirs: Sequence[Path], synth_seeds: Sequence[int], synth_preset: str, out: Path,
-                   log: Callable[[str], None] = print) -> list[BenchScene]:
+                   log: Callable[[str], None] = print, force: bool = False) -> list[BenchScene]:
     """The grid's scenes: ``scene_dirs`` (checked first, so that a typo fails before any
-    synthesis) then the synthetic seeds, made and prepared under ``out/scenes``."""
+    synthesis) then the synthetic seeds, made and prepared under ``out/scenes`` (``force``: see
+    :func:`synth_scene`)."""
     if not scene_dirs and not synth_seeds:
         raise BenchError("no scenes: give --scenes DIR ... or --synth-seeds N ...")
     if len(set(synth_seeds)) != len(synth_seeds):
@@ -163,5 +180,6 @@ def resolve_scenes(scene_dirs: Sequence[Path], synth_seeds: Sequence[int], synth
     synth_labels = [f"seed{seed}" for seed in synth_seeds]
     labels = scene_labels(scene_dirs, reserved=synth_labels)
     scenes = [BenchScene(label, Path(s), p) for label, s, p in zip(labels, scene_dirs, prepared, strict=True)]
-    scenes += [synth_scene(seed, synth_preset, out / SCENES_DIR, log) for seed in synth_seeds]
+    scenes += [synth_scene(seed, synth_preset, out / SCENES_DIR, log, force, out / "runs" / f"seed{seed}")
+               for seed in synth_seeds]
     return scenes

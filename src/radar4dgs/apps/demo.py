@@ -3,7 +3,7 @@
 The demo folder keeps what each step made (``scene/``, ``prepared/``, ``run/``) and reuses it on the
 next call with the same request. ``OUT/demo.json`` records what produced it: the preset, the seed,
 the scene's fingerprint and the prepared stages the run was trained on. A call with another preset,
-seed or config is refused with one line saying what differs (``--fresh`` starts over), so old numbers
+seed or config is refused with one line saying what differs (``--force`` starts over), so old numbers
 are never printed under a new request's name; a run trained on prepared outputs that have changed
 since is retrained.
 """
@@ -11,7 +11,6 @@ since is retrained.
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import sys
 import time
@@ -19,66 +18,20 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from radar4dgs.config import PresetName, config_difference, preset, read_config_dict
+from radar4dgs.apps.reuse import config_digest, run_conflict, scene_conflict
+from radar4dgs.apps.reuse import read_json as _read_json
+from radar4dgs.apps.reuse import request_text as _request
+from radar4dgs.config import PresetName, preset
+
+__all__ = ["DEMO_FILE", "DEMO_OUTPUTS", "DemoCommand", "run_conflict", "scene_conflict", "stage_fingerprints"]
 
 DEMO_FILE = "demo.json"
-# What `--fresh` removes from OUT: everything the demo writes there, nothing else.
+# What `--force` removes from OUT: everything the demo writes there, nothing else.
 DEMO_OUTPUTS = ("scene", "prepared", "run", "inspect.png", "frontend_metrics.json", DEMO_FILE)
 
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    try:
-        value = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError):
-        return None
-    return value if isinstance(value, dict) else None
-
-
-def _first(lines: list[str], limit: int = 3) -> str:
-    """The first ``limit`` differences, and how many more."""
-    more = f"; and {len(lines) - limit} more" if len(lines) > limit else ""
-    return "; ".join(lines[:limit]) + more
-
-
-def _request(preset_name: str, seed: int) -> str:
-    return f"preset '{preset_name}', seed {seed}"
-
-
-def scene_conflict(scene_dir: Path, preset_name: str, seed: int, record: dict[str, Any]) -> str | None:
-    """Why the scene in ``scene_dir`` is not the one asked for (None when it is, or is absent):
-    ``record`` is the generator config as scene.json records it (``config_record``)."""
-    path = scene_dir / "scene.json"
-    if not path.exists():
-        return None
-    scene = _read_json(path)
-    source = (scene or {}).get("source") or {}
-    synthetic = (scene or {}).get("synthetic")  # SceneWriter.finish(extra=...) keys sit at the top level
-    if scene is None or source.get("dataset") != "synthetic" or not isinstance(synthetic, dict):
-        return f"{path}: not a synthetic scene made by `radar4dgs demo`"
-    made = (source.get("preset"), source.get("seed"))
-    if made != (preset_name, seed):
-        return f"{scene_dir} was made with {_request(*made)}, not {_request(preset_name, seed)}"
-    saved = synthetic.get("config")
-    if isinstance(saved, dict) and saved != record:
-        return f"{path}: the scene was made with another generator config ({_first(config_difference(saved, record))})"
-    return None
-
-
-def run_conflict(run_dir: Path, train_config: Any) -> str | None:
-    """Why the run in ``run_dir`` was not trained with ``train_config`` (None when it was, or is absent)."""
-    from radar4dgs.model.config import TrainConfig
-    from radar4dgs.model.run import CONFIG_FILE
-    from radar4dgs.train.run_config import run_config_difference
-
-    path = run_dir / CONFIG_FILE
-    if not path.exists():
-        return None
-    lines = run_config_difference(read_config_dict(TrainConfig, path), train_config)
-    return f"{path}: the run was trained with another config ({_first(lines)})" if lines else None
 
 
 def stage_fingerprints(prepared: Path) -> dict[str, str]:
@@ -97,16 +50,18 @@ class DemoCommand:
     out: Path = Path("runs/demo")  # folder for the scene and every output
     preset: PresetName = "small"  # scene and pipeline size: tiny (seconds), small (CPU default), paper (GPU)
     seed: int = 1  # synthetic scene seed
-    # Start over: delete what an earlier demo wrote in OUT (scene, prepared stages, run) and redo every
+    # Overwrite: delete what an earlier demo wrote in OUT (scene, prepared stages, run) and redo every
     # step. Without it a folder made with another preset, seed or config is refused.
-    fresh: bool = False
+    force: bool = False
+
+    # A run that cannot train (a non-finite loss) is one line too (radar4dgs.cli).
+    USER_ERRORS = ("radar4dgs.train.trainer.TrainingError",)
 
     def run(self) -> int:
         from radar4dgs.apps.prepare import PrepareConfig
         from radar4dgs.datasets.synth import SynthConfig
         from radar4dgs.datasets.synth.generate import config_record
         from radar4dgs.model.config import TrainConfig
-        from radar4dgs.train.trainer import TrainingError
 
         started = time.perf_counter()
         synth_config = replace(preset(SynthConfig, self.preset), seed=self.seed)
@@ -114,7 +69,8 @@ class DemoCommand:
         train_config = preset(TrainConfig, self.preset)
         scene_dir, prepared, run_dir = self.out / "scene", self.out / "prepared", self.out / "run"
         print(f"radar4dgs demo: {_request(self.preset, self.seed)} -> {self.out}")
-        if self.fresh:
+        self.print_config(synth_config, prepare_config, train_config)
+        if self.force:
             for name in DEMO_OUTPUTS:
                 path = self.out / name
                 if path.is_dir():
@@ -124,23 +80,30 @@ class DemoCommand:
         else:
             conflict = self.conflict(record=config_record(synth_config), train_config=train_config)
             if conflict:
-                print(f"radar4dgs demo: {conflict}; pass --fresh to redo the demo in {self.out}, "
+                print(f"radar4dgs demo: {conflict}; pass --force to redo the demo in {self.out}, "
                       f"or choose another --out", file=sys.stderr)
                 return 1
         self.synthesise(synth_config, scene_dir)
         scene = self.inspect(scene_dir)
         status = self.prepare(scene_dir, prepared, prepare_config)
         self.score_frontend(scene, prepared)
-        try:
-            self.train(scene_dir, prepared, run_dir, train_config, status)
-        except TrainingError as exc:
-            print(f"radar4dgs demo: {exc}", file=sys.stderr)
-            return 1
+        self.train(scene_dir, prepared, run_dir, train_config, status)
         self.evaluate(run_dir)
         print(f"    config:  {scene_dir / 'scene.json'} (scene), {prepared / 'config.json'} (prepare), "
               f"{run_dir / 'config.json'} (train)")
         print(f"done in {time.perf_counter() - started:.1f} s ({_request(self.preset, self.seed)})")
         return 0
+
+    def print_config(self, synth_config: Any, prepare_config: Any, train_config: Any) -> None:
+        """The configuration this demo runs with: what each step is made with, and the digest of
+        each resolved config (the train digest is the report's and metrics.json's config hash)."""
+        from radar4dgs.datasets.synth.generate import config_record
+
+        scene = f"{synth_config.width}x{synth_config.height}, {synth_config.num_frames} frames"
+        print(f"    config: scene {scene} (synth config {config_digest(config_record(synth_config))}); "
+              f"prepare config {config_digest(prepare_config)}; train method {train_config.method}, "
+              f"{train_config.optim.iterations} iterations, mask source {train_config.mask_source} "
+              f"(config hash {config_digest(train_config)})")
 
     def conflict(self, record: dict[str, Any], train_config: Any) -> str | None:
         """Why OUT holds another request's demo (None when it holds this one's, part of it, or nothing)."""
@@ -156,7 +119,7 @@ class DemoCommand:
 
         print(f"[1] synthesise a '{self.preset}' scene (seed {self.seed}) -> {scene_dir}")
         if (scene_dir / "scene.json").is_file():
-            print("    reusing the scene (same preset, seed and config; --fresh to regenerate)")
+            print("    reusing the scene (same preset, seed and config; --force to regenerate)")
             return
         synthesize(config, scene_dir, overwrite=True, preset=self.preset)
 
@@ -205,7 +168,7 @@ class DemoCommand:
             print("    the scene or its prepared stages changed since the run was trained: retraining")
             shutil.rmtree(run_dir)
         if (run_dir / "model.pt").is_file():
-            print("    reusing the finished run (same preset, seed and config; --fresh to retrain)")
+            print("    reusing the finished run (same preset, seed and config; --force to retrain)")
         else:
             resume = (run_dir / "checkpoints" / "last.pt").is_file()
             train_run(scene_dir, prepared, run_dir, config, resume=resume, progress=True)

@@ -13,7 +13,6 @@ Default output: ``RUN/export/scene_<part>_t<T>.ply`` (``T`` as ``%g``: ``t0``, `
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal, Optional
@@ -139,14 +138,9 @@ class ExportCommand:
     device: Optional[str] = None
 
     def run(self) -> int:
-        from radar4dgs.io.scene import SceneError
-
-        try:
-            result = export_run(self.run_dir, self.format, self.part, self.time, self.out, self.sh_degree,
-                                self.device)
-        except (SceneError, FileNotFoundError, ValueError) as exc:
-            print(f"radar4dgs export: {exc}", file=sys.stderr)
-            return 1
+        # A missing run or a bad option raises a user error: one line (radar4dgs.cli).
+        result = export_run(self.run_dir, self.format, self.part, self.time, self.out, self.sh_degree,
+                            self.device)
         what = (f"{result.n_static} static" if self.part == "static"
                 else f"{result.n_static} static + {result.n_dynamic} dynamic (moved to t={result.time:g}; "
                      "rotations are the canonical ones, the field moves positions only; opacities at that time)")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, ClassVar, Optional
@@ -40,20 +39,17 @@ class FitMotionCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": MotionConfig}
 
     def run(self) -> int:
-        from radar4dgs.io.scene import SceneError, read_scene
+        from radar4dgs.io.scene import read_scene
         from radar4dgs.train.fit_motion import run_fit, write_motion_outputs
 
         prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
         out = self.out if self.out is not None else prepared / "motion"
-        try:
-            scene = read_scene(self.scene)
-            deformation, result = run_fit(scene, prepared, self.config, self.use_flow, self.use_radar,
-                                          self.recompute_flow, evaluate=scene.has("gt/flow")
-                                          and scene.has("gt/depth") and scene.has("gt/dynamic_mask"),
-                                          progress=not self.quiet)
-        except (SceneError, FileNotFoundError, ValueError) as exc:
-            print(f"radar4dgs fit-motion: {exc}", file=sys.stderr)
-            return 1
+        # A missing or malformed scene or prepared file raises a user error: one line (radar4dgs.cli).
+        scene = read_scene(self.scene)
+        deformation, result = run_fit(scene, prepared, self.config, self.use_flow, self.use_radar,
+                                      self.recompute_flow, evaluate=scene.has("gt/flow")
+                                      and scene.has("gt/depth") and scene.has("gt/dynamic_mask"),
+                                      progress=not self.quiet)
         write_motion_outputs(out, deformation, result, self.config)
         terms = " + ".join(name for name, on in (("flow", self.use_flow), ("radar", self.use_radar)) if on)
         print(f"fit ({terms}) in {result['fit_seconds']:.1f} s")

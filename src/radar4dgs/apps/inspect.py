@@ -25,13 +25,9 @@ class InspectCommand:
     def run(self) -> int:
         from radar4dgs.io.atomic import atomic_write_json
         from radar4dgs.io.preview import contact_sheet, format_summary, save_png, summarize_scene
-        from radar4dgs.io.scene import SceneError, read_scene
+        from radar4dgs.io.scene import read_scene
 
-        try:
-            scene = read_scene(self.scene)
-        except SceneError as exc:
-            print(f"radar4dgs inspect: {exc}", file=sys.stderr)
-            return 1
+        scene = read_scene(self.scene)  # a SceneError is one line (radar4dgs.cli)
         summary = summarize_scene(scene)
         print(format_summary(summary))
         sheet_path = self.sheet or scene.root / "inspect.png"

@@ -4,14 +4,14 @@ Stages run in order, each writing ``<prepared>/<stage>/``. A stage is skipped wh
 a ``stage.json`` written for the same stage config and the same ``scene.json``; ``--force`` redoes
 it. Each stage folder is written in a temporary folder and renamed into place, so an interrupted
 run leaves either the old outputs or none. The resolved config is saved as
-``<prepared>/config.json``. Later issues add stages (depth, segmentation, ...) to ``STAGES``.
+``<prepared>/config.json``. ``--only`` runs some stages alone; the stages before them must then
+hold this scene's outputs for this config, else the command refuses with what differs.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Callable, ClassVar, Literal, Mapping, Optional
@@ -23,7 +23,7 @@ from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName, save_config, to_dict
 from radar4dgs.depth.config import DepthConfig
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
-from radar4dgs.io.scene import Scene, SceneError, read_scene
+from radar4dgs.io.scene import Scene, read_scene
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import run_flow_stage
 from radar4dgs.radar.config import RadarConfig
@@ -101,15 +101,29 @@ def scene_fingerprint(scene: Scene) -> str:
     return hashlib.sha256((scene.root / "scene.json").read_bytes()).hexdigest()
 
 
-def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bool:
+def stage_difference(stage_dir: Path, stage_config: Any, fingerprint: str) -> str | None:
+    """Why the outputs in ``stage_dir`` are not those of ``stage_config`` on the scene with
+    ``fingerprint`` (None when they are): missing, unreadable, another scene or another config."""
+    from radar4dgs.config import config_difference
+
     marker = stage_dir / STAGE_MARKER
     if not marker.is_file():
-        return False
+        return f"{stage_dir}: not prepared (no {STAGE_MARKER})"
     try:
         saved = json.loads(marker.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError):
-        return False
-    return saved.get("config") == to_dict(stage_config) and saved.get("scene") == fingerprint
+        return f"{marker}: unreadable"
+    if saved.get("scene") != fingerprint:
+        return f"{stage_dir}: prepared for another scene.json"
+    changed = config_difference(saved.get("config") or {}, to_dict(stage_config))
+    if changed:
+        more = f"; and {len(changed) - 3} more" if len(changed) > 3 else ""
+        return f"{stage_dir}: prepared with another config ({'; '.join(changed[:3])}{more})"
+    return None
+
+
+def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bool:
+    return stage_difference(stage_dir, stage_config, fingerprint) is None
 
 
 def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareConfig | None = None,
@@ -125,6 +139,14 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
     prepared.mkdir(parents=True, exist_ok=True)
     save_config(config, prepared / "config.json")
     fingerprint = scene_fingerprint(scene)
+    if only:
+        # A stage run alone reads its predecessors' outputs: they must be this scene's and config's.
+        first = min(known.index(name) for name in only)
+        for stage in STAGES[:first]:
+            stale = stage_difference(prepared / stage.name, getattr(config, stage.name), fingerprint)
+            if stale:
+                raise ValueError(f"{stale}; the later stages read it: add {stage.name} to --only, or run "
+                                 f"without --only")
     status: dict[str, str] = {}
     # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
     upstream_changed = False
@@ -163,7 +185,8 @@ class PrepareCommand:
     preset: PresetName = "small"
     # Stage configs (filled from --preset, then overridden by the options below).
     config: PrepareConfig = field(default_factory=PrepareConfig)
-    # Redo stages even when their outputs exist for the same config.
+    # Redo stages even when their outputs exist for the same config (a stage made with another config or
+    # for another scene is always redone, and so are the stages after it).
     force: bool = False
     # Run only these stages (in pipeline order, whatever the order given).
     only: Annotated[tuple[StageName, ...], default_is("every stage")] = ()
@@ -172,15 +195,13 @@ class PrepareCommand:
 
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": PrepareConfig}
 
-    def run(self) -> int:
-        from radar4dgs.depth.sources import DepthModelError
+    # A depth model that cannot load is a one-line error too (radar4dgs.cli).
+    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.depth.sources.DepthModelError",)
 
-        try:
-            status = run_prepare(self.scene, self.out, self.config, self.force, tuple(self.only),
-                                 progress=not self.quiet)
-        except (SceneError, ValueError, FileExistsError, DepthModelError) as exc:
-            print(f"radar4dgs prepare: {exc}", file=sys.stderr)
-            return 1
+    def run(self) -> int:
+        # A missing or malformed scene or a bad option raises a user error: one line (radar4dgs.cli).
+        status = run_prepare(self.scene, self.out, self.config, self.force, tuple(self.only),
+                             progress=not self.quiet)
         prepared = self.out if self.out is not None else self.scene / "prepared"
         for name, what in status.items():
             print(f"{name}: {what} -> {prepared / name}")

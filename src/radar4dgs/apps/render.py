@@ -20,7 +20,6 @@ Outputs (``<slug>`` is the spec made file-name safe, e.g. ``lane-shift_2``, ``st
 from __future__ import annotations
 
 import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Iterator, Optional
@@ -210,18 +209,14 @@ class RenderCommand:
     quiet: bool = False
 
     def run(self) -> int:
-        from radar4dgs.io.scene import SceneError
         from radar4dgs.train.fit_motion import torch_threads
 
-        try:
-            with torch_threads(self.threads):
-                result = render_trajectory(self.run_dir, self.trajectory, interpolate=self.interpolate,
-                                           with_depth=self.with_depth, out=self.out, fps=self.fps,
-                                           scale=self.scale, device=self.device, video=self.video,
-                                           progress=not self.quiet)
-        except (SceneError, FileNotFoundError, ValueError) as exc:
-            print(f"radar4dgs render: {exc}", file=sys.stderr)
-            return 1
+        # A missing run or a bad trajectory raises a user error: one line (radar4dgs.cli).
+        with torch_threads(self.threads):
+            result = render_trajectory(self.run_dir, self.trajectory, interpolate=self.interpolate,
+                                       with_depth=self.with_depth, out=self.out, fps=self.fps,
+                                       scale=self.scale, device=self.device, video=self.video,
+                                       progress=not self.quiet)
         print(f"rendered {result.poses} views ({result.width}x{result.height}) of {self.trajectory!r}: "
               f"{result.frames}/" + (f", {result.video}" if result.video is not None else ""))
         return 0

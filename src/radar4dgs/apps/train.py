@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, ClassVar, Optional
@@ -42,26 +41,38 @@ class TrainCommand:
     method: MethodName = "ours"
     # Continue the run in --out from its last checkpoint.
     resume: bool = False
+    # Overwrite: delete the run in --out (made with another config, or finished) and train from scratch.
+    # Without it a run folder made with another config is refused with what differs.
+    force: bool = False
     # Evaluate the run when training ends (as `radar4dgs eval RUN`).
     eval: bool = True
     # Hide the progress bar.
     quiet: bool = False
 
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": TrainOptions}
+    # A run that cannot train or resume (a non-finite loss, a checkpoint of another config) is a
+    # one-line error too (radar4dgs.cli).
+    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.train.trainer.TrainingError",)
 
     def run(self) -> int:
         from radar4dgs.evaluate.reconstruction import write_provenance
-        from radar4dgs.io.scene import SceneError
-        from radar4dgs.train.trainer import TrainingError, train_run
+        from radar4dgs.train.trainer import train_run
         from radar4dgs.train.variants import apply_variant
 
         prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
-        try:
-            config = apply_variant(self.config, self.method)  # a TrainConfig, the method's fields set
-            train_run(self.scene, prepared, self.out, config, resume=self.resume, progress=not self.quiet)
-        except (SceneError, FileNotFoundError, ValueError, TrainingError) as exc:
-            print(f"radar4dgs train: {exc}", file=sys.stderr)
-            return 1
+        config = apply_variant(self.config, self.method)  # a TrainConfig, the method's fields set
+        conflict = existing_run_conflict(self.out, config, self.resume)
+        if conflict and not self.force:
+            raise FileExistsError(conflict)
+        if conflict:
+            from radar4dgs.apps.reuse import remove_run
+
+            remove_run(self.out)
+            print(f"--force: removed the earlier run in {self.out}")
+        check_prepared_scene(self.scene, prepared)
+        # A missing or malformed scene or prepared stage raises a user error: one line (radar4dgs.cli).
+        train_run(self.scene, prepared, self.out, config, resume=self.resume and not conflict,
+                  progress=not self.quiet)
         write_provenance(self.out, preset=self.preset, method=self.method,
                          command=f"radar4dgs train {self.scene} --out {self.out} --preset {self.preset} "
                                  f"--method {self.method} (other options: config.json)")
@@ -71,3 +82,48 @@ class TrainCommand:
 
             return EvalCommand(self.out).run()
         return 0
+
+
+def existing_run_conflict(out: Path, config, resume: bool) -> str | None:
+    """Why training ``config`` into ``out`` would mix with the run already there (None when there
+    is none, or when ``resume`` continues a run of the same config): a run of another config,
+    which neither a new run nor a resume may reuse, or a run of this config without ``resume``."""
+    from radar4dgs.apps.reuse import FORCE_HINT, first_differences, run_differences
+    from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
+
+    last, model = out / CHECKPOINT_DIR / LAST_CHECKPOINT, out / MODEL_FILE
+    if not (last.is_file() or model.is_file()):
+        return None  # nothing trained there yet: training writes it anew
+    differences = run_differences(out, config)
+    if differences:
+        return (f"{out / CONFIG_FILE}: the run there was trained with another config "
+                f"({first_differences(differences)}); {FORCE_HINT}, or choose another --out")
+    if resume:
+        return None
+    what = "a finished run" if model.is_file() else f"a run (checkpoint {last})"
+    return (f"{out}: holds {what} of this config already; pass --resume to continue it, --force to "
+            f"train it again, or choose another --out")
+
+
+def check_prepared_scene(scene: Path, prepared: Path) -> None:
+    """Refuse (ValueError) a prepared folder whose stages were made for another ``scene.json``
+    than ``scene``'s: a run trained on them would mix two scenes. A scene that cannot be read and
+    stages that are missing are left to the trainer, which names them."""
+    import hashlib
+    import json
+
+    from radar4dgs.apps.prepare import STAGE_MARKER, STAGES
+
+    try:
+        fingerprint = hashlib.sha256((scene / "scene.json").read_bytes()).hexdigest()
+    except OSError:
+        return
+    for stage in STAGES:
+        marker = prepared / stage.name / STAGE_MARKER
+        try:
+            made_for = json.loads(marker.read_text(encoding="utf-8")).get("scene")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if made_for != fingerprint:
+            raise ValueError(f"{prepared / stage.name}: prepared for another scene.json than {scene / 'scene.json'}; "
+                             f"run `radar4dgs prepare {scene} --out {prepared}`")

@@ -40,14 +40,9 @@ class ViewCommand:
         except ViewerUnavailable as exc:
             print(f"radar4dgs view: {exc}", file=sys.stderr)
             return 1
-        from radar4dgs.io.scene import SceneError
         from radar4dgs.model.run import load_run
 
-        try:
-            run = load_run(self.run_dir, self.device)
-        except (SceneError, FileNotFoundError, ValueError) as exc:
-            print(f"radar4dgs view: {exc}", file=sys.stderr)
-            return 1
+        run = load_run(self.run_dir, self.device)  # a missing or broken run is one line (radar4dgs.cli)
         if self.threads > 0:
             torch.set_num_threads(self.threads)  # the process is the viewer's alone until it exits
         viewer = Viewer(run, self.host, self.port, self.render_height)

@@ -271,10 +271,10 @@ def evaluate_frontend(scene: Scene, prepared_dir: str | Path) -> dict[str, Any]:
     report: dict[str, Any] = {"scene": str(scene.root), "prepared": str(prepared_dir), "skipped": {}}
     for name, function in SECTIONS.items():
         missing = missing_ground_truth(scene, name)
-        if not (prepared_dir / name).is_dir():
-            report["skipped"][name] = f"not prepared (no {prepared_dir / name}; run `radar4dgs prepare`)"
-        elif missing:
+        if missing:  # first: preparing the stage would not help
             report["skipped"][name] = f"no ground truth: {missing}"
+        elif not (prepared_dir / name).is_dir():
+            report["skipped"][name] = f"not prepared (no {prepared_dir / name}; run `radar4dgs prepare`)"
         else:
             report[name] = function(scene, prepared_dir)
     return report
@@ -294,15 +294,12 @@ class FrontendEvalCommand:
     def run(self) -> int:
         import json as _json
 
-        try:
-            scene = read_scene(self.scene)
-            prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
-            if not prepared.is_dir():
-                raise SceneError(prepared, "missing prepared folder (run `radar4dgs prepare` first)")
-            report = evaluate_frontend(scene, prepared)
-        except (SceneError, FileNotFoundError) as exc:
-            print(f"radar4dgs frontend-eval: {exc}", file=sys.stderr)
-            return 1
+        # A missing or malformed scene or prepared folder is a user error: one line (radar4dgs.cli).
+        scene = read_scene(self.scene)
+        prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
+        if not prepared.is_dir():
+            raise SceneError(prepared, "missing prepared folder (run `radar4dgs prepare` first)")
+        report = evaluate_frontend(scene, prepared)
         if self.json is not None:
             atomic_write_json(self.json, report)
             print(format_report(report))

@@ -10,9 +10,14 @@ gradient (never through the training loop), and writes:
   without backbone weights), ``psnr_dyn`` (PSNR* over the dynamic-mask pixels, averaged over
   frames whose mask is not empty) and ``n_frames``. Reconstruction = training frames, novel-view
   synthesis (nvs) = test frames (every 4th). ``mask_coverage``: per split, the fraction of the
-  pixels the PSNR* masks cover; ``psnr_dyn_caveats`` says when PSNR* means little (masks under
-  :data:`MIN_MASK_COVERAGE` of the pixels, predicted masks). ``run`` (:func:`run_record`): what
-  made the run (preset, method, config hash, code version, training time).
+  pixels the PSNR* masks cover; ``predicted_mask_recall``: per split, the fraction of the
+  ground-truth dynamic pixels that the predicted masks the run trained on (``prepared/masks``)
+  cover (null unless the scene has ``gt/dynamic_mask`` and the run's ``mask_source`` is
+  "predicted"); ``psnr_dyn_caveats`` says when PSNR* means little (masks under
+  :data:`MIN_MASK_COVERAGE` of the pixels, predicted masks finding under :data:`MIN_MASK_RECALL`
+  of the ground-truth dynamic pixels, predicted masks as PSNR* masks) and ``psnr_dyn_flagged``,
+  per split, whether one of the first two holds. ``run`` (:func:`run_record`): what made the run
+  (preset, method, config hash, code version, training time).
 - ``RUN/renders/{recon,nvs}/<frame>.png`` and ``<frame>_depth.png``, ``<frame>_dynamic.png``.
 - ``RUN/video.mp4``: ground truth | render | depth | dynamic mask, every frame in time order.
 - ``RUN/report.html``: what made the run, metrics and their caveats, per-frame PSNR, loss curves
@@ -49,6 +54,9 @@ REPORT_FILE = "report.html"
 PROVENANCE_FILE = "provenance.json"
 # PSNR* is flagged as not meaningful when its masks cover less than this fraction of a split's pixels.
 MIN_MASK_COVERAGE = 0.005
+# PSNR* is flagged when the predicted masks a run trained on find less than this fraction of the
+# ground-truth dynamic pixels: the run then modelled most moving pixels as static.
+MIN_MASK_RECALL = 0.5
 # One colour scale for every depth picture of a run, so the video does not flicker (metres).
 DEPTH_NEAR, DEPTH_FAR = 2.0, 120.0
 
@@ -120,6 +128,56 @@ def run_record(run: Run) -> dict[str, Any]:
             "command": provenance.get("command"), "config_hash": config_hash(run.root),
             "code_version": __version__, "trained_with_version": provenance.get("code_version"),
             "iterations": run.config.optim.iterations, "train_seconds": history.get("train_seconds_last_call")}
+
+
+def trained_mask_recall(run: Run, index: int, source: str, gt_mask: np.ndarray) -> tuple[int, int] | None:
+    """(ground-truth dynamic pixels the predicted masks the run trained on cover, ground-truth
+    dynamic pixels) of frame ``index``; None unless the PSNR* masks are the ground truth
+    (``source`` "gt"), the run trained on the predicted masks and frame ``index`` has one."""
+    if source != "gt" or run.config.mask_source != "predicted":
+        return None
+    path = run.prepared / "masks" / f"{run.scene.frames[index].name}.png"
+    if not path.is_file():
+        return None
+    truth = np.asarray(gt_mask, dtype=bool)
+    predicted = np.asarray(read_mask_png(path, truth.shape), dtype=bool)
+    return int((predicted & truth).sum()), int(truth.sum())
+
+
+def mask_recall(per_frame: dict[str, list[dict]]) -> dict[str, float | None] | None:
+    """Per split, the fraction of the ground-truth dynamic pixels the run's predicted masks cover
+    (from the entries' ``trained_mask_hits`` / ``dynamic_pixels``); None when no frame has it."""
+    if not any("trained_mask_hits" in e for entries in per_frame.values() for e in entries):
+        return None
+    out: dict[str, float | None] = {}
+    for split, entries in per_frame.items():
+        scored = [e for e in entries if "trained_mask_hits" in e]
+        total = sum(e["dynamic_pixels"] for e in scored)
+        out[split] = sum(e["trained_mask_hits"] for e in scored) / total if total else None
+    return out
+
+
+def recall_caveats(recall: dict[str, float | None] | None) -> list[str]:
+    """The caveats on PSNR* of the splits where the predicted masks the run trained on find under
+    :data:`MIN_MASK_RECALL` of the ground-truth dynamic pixels."""
+    return [f"PSNR* ({split}): the predicted dynamic masks the run trained on (prepared/masks) find only "
+            f"{value:.1%} of the ground-truth dynamic pixels, under {MIN_MASK_RECALL:.0%}: most moving pixels "
+            f"were modelled as static, so PSNR* (on the ground-truth masks) measures the static scene there, "
+            f"not the method's dynamic model"
+            for split, value in (recall or {}).items() if value is not None and value < MIN_MASK_RECALL]
+
+
+def psnr_dyn_flags(coverage: dict[str, float | None], recall: dict[str, float | None] | None
+                   ) -> dict[str, bool]:
+    """Per split, whether PSNR* is flagged: masks under :data:`MIN_MASK_COVERAGE` of the pixels
+    (or empty), or the run's predicted masks finding under :data:`MIN_MASK_RECALL` of the
+    ground-truth dynamic pixels."""
+    flags = {}
+    for split, covered in coverage.items():
+        found = (recall or {}).get(split)
+        flags[split] = (covered is not None and covered < MIN_MASK_COVERAGE) or (
+            found is not None and found < MIN_MASK_RECALL)
+    return flags
 
 
 def mask_caveats(per_frame: dict[str, list[dict]], source: str, pixels_per_frame: int
@@ -201,6 +259,9 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                      "dynamic_pixels": int(mask.sum())}
             for net, scorer in scorers.items():
                 entry[f"lpips_{net}"] = scorer(rgb, gt) if scorer is not None else None
+            found = trained_mask_recall(run, index, source, mask)
+            if found is not None:
+                entry["trained_mask_hits"] = found[0]
             per_frame[split].append(entry)
             render_u8, gt_u8 = to_uint8(rgb), scene.load_image(index)
             depth_u8 = depth_to_rgb(np.where(out["alpha"].cpu().numpy() > 0.05, out["depth"].cpu().numpy(), np.nan),
@@ -218,9 +279,12 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                                "dynamic mask": dyn_u8, "radar": radar_overlay(scene, index, gt_u8),
                                "psnr": f"{entry['psnr']:.2f} dB"})
     coverage, caveats = mask_caveats(per_frame, source, scene.camera.width * scene.camera.height)
+    recall = mask_recall(per_frame)
+    caveats = recall_caveats(recall) + caveats
     metrics: dict[str, Any] = {
         "recon": summarize_frames(per_frame["recon"]), "nvs": summarize_frames(per_frame["nvs"]),
-        "mask_source": source, "mask_coverage": coverage, "psnr_dyn_caveats": caveats,
+        "mask_source": source, "mask_coverage": coverage, "predicted_mask_recall": recall,
+        "psnr_dyn_flagged": psnr_dyn_flags(coverage, recall), "psnr_dyn_caveats": caveats,
         "lpips_available": all(s is not None for s in scorers.values()),
         "method": run.config.method, "num_gaussians": run.model.num_gaussians,
         "run": run_record(run),
@@ -245,6 +309,9 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                     "evaluation time": _duration(metrics["eval_seconds"]),
                     "code version": record["code_version"], "trained with version": record["trained_with_version"],
                     "PSNR* masks": f"{source} ({_coverage_text(coverage)})"}
+        if recall is not None:
+            run_info["predicted masks' recall of the gt dynamic pixels"] = ", ".join(
+                f"{split} {value:.1%}" for split, value in recall.items() if value is not None) or None
         links = {"resolved config": CONFIG_FILE, "metrics": METRICS_FILE}
         has_video = video and (run.root / VIDEO_FILE).is_file()
         if has_video:
@@ -253,7 +320,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
                      metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
                      per_frame=per_frame, history=loss_curves(history), panels=panels,
                      run_info=run_info, caveats=caveats, links=links, video=VIDEO_FILE if has_video else None,
-                     config=_read_json(run.root / CONFIG_FILE).get("config"))
+                     config=_read_json(run.root / CONFIG_FILE).get("config"),
+                     flagged=[split for split, flag in metrics["psnr_dyn_flagged"].items() if flag])
     return metrics
 
 

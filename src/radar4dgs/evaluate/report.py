@@ -53,6 +53,7 @@ th { background: #f0f0f0; }
 figure { margin: 0; flex: 1 1 0; min-width: 160px; }
 figure img { width: 100%; image-rendering: pixelated; border: 1px solid #ddd; }
 figcaption { text-align: center; font-size: 0.9em; }
+.flagged { background: #fff4d6; }
 .caveat { background: #fff4d6; border-left: 4px solid #e0a000; padding: 6px 10px; margin: 6px 0; }
 video { max-width: 100%; border: 1px solid #ddd; }
 pre { background: #f6f6f6; padding: 8px; overflow-x: auto; font-size: 0.85em; }
@@ -136,7 +137,7 @@ def _new_figure(width: float, height: float):
 # Sections
 
 
-def _metrics_section(metrics: Mapping[str, Any]) -> str:
+def _metrics_section(metrics: Mapping[str, Any], flagged: Sequence[str] = ()) -> str:
     splits = [s for s in SPLITS if isinstance(metrics.get(s), Mapping)]
     splits += [k for k, v in metrics.items() if isinstance(v, Mapping) and k not in splits]
     known = {key for key, _, _ in METRIC_COLUMNS}
@@ -148,7 +149,10 @@ def _metrics_section(metrics: Mapping[str, Any]) -> str:
     rows = []
     for split in (splits or list(SPLITS)):
         values = metrics.get(split) or {}
-        cells = "".join(f"<td>{_esc(_fmt(values.get(key), fmt))}</td>" for key, _, fmt in columns)
+        cells = "".join(
+            f"<td class=\"flagged\">{_esc(_fmt(values.get(key), fmt))} (flagged: see the caveats)</td>"
+            if key == "psnr_dyn" and split in flagged else f"<td>{_esc(_fmt(values.get(key), fmt))}</td>"
+            for key, _, fmt in columns)
         rows.append(f"<tr><td>{_esc(SPLIT_LABELS.get(split, split))}</td>{cells}</tr>")
     scalars = [(k, v) for k, v in metrics.items() if not isinstance(v, Mapping)]
     meta = "".join(f"<li>{_esc(k)}: <b>{_esc(_fmt(v))}</b></li>" for k, v in scalars)
@@ -321,9 +325,10 @@ def render_report(*, title: str, metrics: Mapping[str, Any],
                   history: Sequence[Mapping[str, Any]], panels: Sequence[Mapping[str, Any]],
                   max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
                   caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
-                  video: str | None = None, config: Mapping[str, Any] | None = None) -> str:
+                  video: str | None = None, config: Mapping[str, Any] | None = None,
+                  flagged: Sequence[str] = ()) -> str:
     """The report's HTML text (see :func:`write_report`)."""
-    body = (_run_section(run_info or {}, links or {}, video, config) + _metrics_section(metrics)
+    body = (_run_section(run_info or {}, links or {}, video, config) + _metrics_section(metrics, flagged)
             + _caveats_section(caveats) + _per_frame_section(per_frame) + _history_section(history)
             + _panels_section(panels, max_image_width))
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
@@ -336,7 +341,8 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
                  history: Sequence[Mapping[str, Any]], panels: Sequence[Mapping[str, Any]],
                  max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
                  caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
-                 video: str | None = None, config: Mapping[str, Any] | None = None) -> Path:
+                 video: str | None = None, config: Mapping[str, Any] | None = None,
+                 flagged: Sequence[str] = ()) -> Path:
     """Write one self-contained HTML report to ``path`` (atomically); returns the path.
 
     ``metrics``: ``{"recon": {...}, "nvs": {...}, "mask_source": str, "lpips_available": bool}``,
@@ -352,9 +358,10 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
     table; ``caveats``: sentences shown highlighted under the metrics (e.g. PSNR* on near-empty
     masks); ``links``: label -> name of a file beside the report (``config.json``); ``video``: the
     name of a video beside the report, played in the page; ``config``: the resolved config, shown
-    as JSON in a collapsed block.
+    as JSON in a collapsed block; ``flagged``: the splits whose PSNR* is flagged by a caveat, marked
+    in the metrics table.
     """
     text = render_report(title=title, metrics=metrics, per_frame=per_frame, history=history,
                          panels=panels, max_image_width=max_image_width, run_info=run_info,
-                         caveats=caveats, links=links, video=video, config=config)
+                         caveats=caveats, links=links, video=video, config=config, flagged=flagged)
     return atomic_write_text(path, text)

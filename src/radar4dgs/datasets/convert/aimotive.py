@@ -273,7 +273,7 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
     if not 0 < scale <= 1:
         raise ValueError(f"--scale must be in (0, 1], got {scale}")
     if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
-        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
+        raise FileExistsError(f"{out}: already exists (pass --force to overwrite it)")
     config = radar_config or aimotive_radar_config()
     seq = _read_sequence(src)
 
@@ -312,8 +312,8 @@ class ConvertAimotiveCommand:
     out: tyro.conf.Positional[Path]
     # Image resize factor after undistortion (0.5: 1280x704 -> 640x352, light enough for CPU runs).
     scale: float = 0.5
-    # Replace an existing output folder.
-    overwrite: bool = False
+    # Overwrite an existing output folder.
+    force: bool = False
     # Remove the constant heading offset between the radar's direction of travel and the body
     # x-axis before estimating the yaw rate (a 0.6 deg mount-yaw error reads as a 0.08 rad/s turn).
     align_heading: bool = True
@@ -324,7 +324,7 @@ class ConvertAimotiveCommand:
 
     def run(self) -> int:
         try:
-            out = convert_aimotive(self.src, self.out, self.scale, self.overwrite, self.radar,
+            out = convert_aimotive(self.src, self.out, self.scale, self.force, self.radar,
                                    self.align_heading, progress=not self.quiet)
         except (SceneError, ValueError, FileExistsError) as exc:
             print(f"radar4dgs convert aimotive: {exc}", file=sys.stderr)

@@ -332,7 +332,7 @@ def convert_omnihd(root: str | Path, out: str | Path, clip: str, start: int = 0,
     """
     root, out = Path(root), Path(out)
     if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
-        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
+        raise FileExistsError(f"{out}: already exists (pass --force to overwrite it)")
     tables = _check_arguments(root, clip, start, frames, width, height, version, lidar, lidar_columns)
 
     sample_data, sd_path = _read_table(tables, "sample_data")
@@ -418,15 +418,15 @@ class ConvertOmnihdCommand:
     lidar_columns: int = 5
     # Sign applied to the raw Doppler: auto checks it against the poses with the ego-motion fit.
     doppler_sign: DopplerSign = "auto"
-    # Replace an existing output folder.
-    overwrite: bool = False
+    # Overwrite an existing output folder.
+    force: bool = False
     # Hide the progress bar.
     quiet: bool = False
 
     def run(self) -> int:
         try:
             out = convert_omnihd(self.root, self.out, self.clip, self.start, self.frames, self.width, self.height,
-                                 self.version, self.lidar, self.lidar_columns, self.doppler_sign, self.overwrite,
+                                 self.version, self.lidar, self.lidar_columns, self.doppler_sign, self.force,
                                  progress=not self.quiet)
         except (SceneError, ValueError, FileExistsError) as exc:
             print(f"radar4dgs convert omnihd: {exc}", file=sys.stderr)

@@ -336,7 +336,7 @@ def convert_vod(root: str | Path, out: str | Path, frames: str, width: int | Non
     ``out`` and return ``out``. Images keep their size unless ``width`` and ``height`` are given."""
     root, out = Path(root), Path(out)
     if out.exists() and not overwrite:  # refused before any reading (and any progress bar)
-        raise FileExistsError(f"{out}: already exists (pass --overwrite to replace it)")
+        raise FileExistsError(f"{out}: already exists (pass --force to overwrite it)")
     first_number, end_number, folders = _check_arguments(root, frames, width, height, frame_period, max_speed)
     numbers = _frame_numbers(folders["velodyne"], first_number, end_number, frames)
     names = [f"{n:05d}" for n in numbers]
@@ -437,15 +437,15 @@ class ConvertVodCommand:
     frame_period: float = 0.1
     # Fastest plausible ego speed (m/s): a larger odometry step between frames is a sequence break.
     max_speed: float = 40.0
-    # Replace an existing output folder.
-    overwrite: bool = False
+    # Overwrite an existing output folder.
+    force: bool = False
     # Hide the progress bar.
     quiet: bool = False
 
     def run(self) -> int:
         try:
             out = convert_vod(self.root, self.out, self.frames, self.width, self.height, self.lidar,
-                              self.doppler_sign, self.frame_period, self.max_speed, self.overwrite,
+                              self.doppler_sign, self.frame_period, self.max_speed, self.force,
                               progress=not self.quiet)
         except (SceneError, ValueError, FileExistsError) as exc:
             print(f"radar4dgs convert vod: {exc}", file=sys.stderr)

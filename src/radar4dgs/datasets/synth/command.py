@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -24,7 +25,9 @@ class SynthCommand:
     # crossing cars passing close, pedestrians, cyclists: tens to hundreds of pixels per frame) or rush
     # (realistic with more and faster oncoming and crossing cars); explicit --scene.traffic.* options win
     traffic: Literal["calm", "realistic", "rush"] = "calm"
-    overwrite: bool = False  # replace OUT if it exists
+    # Overwrite OUT if it exists. Without it, OUT holding this very scene (same preset, seed and config) is
+    # left as it is, and anything else there is refused with what differs.
+    force: bool = False
     scene: SynthConfig = field(default_factory=SynthConfig)  # every generator option; defaults from --preset
 
     PRESET_FIELDS = {"scene": SynthConfig}
@@ -33,8 +36,39 @@ class SynthCommand:
         from radar4dgs.datasets.synth.generate import synthesize
 
         config = replace(self.scene, seed=self.seed, traffic=traffic_profile(self.traffic, self.scene.traffic))
+        if self.out.exists() and not self.force:
+            difference = existing_scene_difference(self.out, config, self.preset)
+            if difference:
+                raise FileExistsError(f"{self.out}: already exists ({difference}); pass --force to overwrite it")
+            print(f"{self.out}: holds this scene already (same preset, seed and config); left as it is "
+                  f"(--force makes it again)")
+            return 0
         start = time.perf_counter()
-        out = synthesize(config, self.out, overwrite=self.overwrite, preset=self.preset)
+        out = synthesize(config, self.out, overwrite=self.force, preset=self.preset)
         print(f"wrote {out}: {config.num_frames} frames {config.width}x{config.height}, preset {self.preset}, "
               f"seed {config.seed}, traffic {self.traffic}, {time.perf_counter() - start:.1f} s")
         return 0
+
+
+def existing_scene_difference(out: Path, config: SynthConfig, preset: str) -> str | None:
+    """How the folder ``out`` differs from the scene ``config`` and ``preset`` make (None when it
+    holds that scene): not a synthetic scene, another preset or seed, or another generator config."""
+    from radar4dgs.config import config_difference
+    from radar4dgs.datasets.synth.generate import config_record
+
+    try:
+        scene = json.loads((out / "scene.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        scene = None
+    source = scene.get("source") if isinstance(scene, dict) else None
+    synthetic = scene.get("synthetic") if isinstance(scene, dict) else None
+    if not isinstance(source, dict) or source.get("dataset") != "synthetic" or not isinstance(synthetic, dict):
+        return "not a synthetic scene"
+    made, asked = (source.get("preset"), source.get("seed")), (preset, config.seed)
+    if made != asked:
+        return f"made with preset {made[0]!r}, seed {made[1]}, not preset {asked[0]!r}, seed {asked[1]}"
+    changed = config_difference(synthetic.get("config") or {}, config_record(config))
+    if changed:
+        more = f"; and {len(changed) - 3} more" if len(changed) > 3 else ""
+        return f"made with another generator config: {'; '.join(changed[:3])}{more}"
+    return None
