@@ -41,13 +41,19 @@ class EchoCommand:
         return 0
 
 
+def register_command(monkeypatch, command_class: type, names: dict[str, str]) -> None:
+    """Make ``command_class`` the command of each name (name -> summary), from a fake module."""
+    module_name = f"{command_class.__name__.lower()}_module"
+    module = types.ModuleType(module_name)
+    setattr(module, command_class.__name__, command_class)
+    monkeypatch.setitem(sys.modules, module_name, module)
+    for name, summary in names.items():
+        monkeypatch.setitem(cli.COMMANDS, name, (module_name, command_class.__name__, summary))
+
+
 @pytest.fixture
 def echo(monkeypatch):
-    module = types.ModuleType("echo_module")
-    module.EchoCommand = EchoCommand
-    monkeypatch.setitem(sys.modules, "echo_module", module)
-    monkeypatch.setitem(cli.COMMANDS, "echo", ("echo_module", "EchoCommand", "Echo."))
-    monkeypatch.setitem(cli.COMMANDS, "echo twice", ("echo_module", "EchoCommand", "Echo twice."))
+    register_command(monkeypatch, EchoCommand, {"echo": "Echo.", "echo twice": "Echo twice."})
 
 
 def test_preset_fills_nested_defaults_and_flags_override(echo, capsys):
@@ -139,10 +145,7 @@ class FailCommand:
 
 @pytest.fixture
 def fail(monkeypatch):
-    module = types.ModuleType("fail_module")
-    module.FailCommand = FailCommand
-    monkeypatch.setitem(sys.modules, "fail_module", module)
-    monkeypatch.setitem(cli.COMMANDS, "fail", ("fail_module", "FailCommand", "Fail."))
+    register_command(monkeypatch, FailCommand, {"fail": "Fail."})
 
 
 def test_user_errors_are_one_line_and_debug_shows_the_traceback(fail, capsys):

@@ -118,6 +118,13 @@ def config_difference(saved: Mapping[str, Any], expected: Mapping[str, Any], ign
     return out
 
 
+def first_differences(lines: Sequence[str], limit: int = 3) -> str:
+    """The first ``limit`` of :func:`config_difference`'s lines, and how many more: for a one-line
+    refusal that says what differs."""
+    more = f"; and {len(lines) - limit} more" if len(lines) > limit else ""
+    return "; ".join(lines[:limit]) + more
+
+
 def save_config(config: Any, path: str | Path) -> Path:
     """Save the resolved config as JSON (atomically), with its class name for reloading."""
     payload = {"class": f"{type(config).__module__}.{type(config).__qualname__}", "config": to_dict(config)}

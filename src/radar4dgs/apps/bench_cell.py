@@ -33,7 +33,8 @@ def run_cell(spec: CellSpec) -> dict[str, Any]:
     bench's (other iterations, say) raises, saying what differs: its numbers would not belong in
     this table; with ``spec.force`` it is deleted and trained again.
     """
-    from radar4dgs.apps.reuse import first_differences, remove_run, run_differences
+    from radar4dgs.apps.reuse import remove_run, run_differences
+    from radar4dgs.config import first_differences
     from radar4dgs.evaluate.reconstruction import evaluate_run, write_provenance
     from radar4dgs.model.run import CHECKPOINT_DIR, LAST_CHECKPOINT, MODEL_FILE
     from radar4dgs.train.fit_motion import torch_threads

@@ -104,7 +104,7 @@ def scene_fingerprint(scene: Scene) -> str:
 def stage_difference(stage_dir: Path, stage_config: Any, fingerprint: str) -> str | None:
     """Why the outputs in ``stage_dir`` are not those of ``stage_config`` on the scene with
     ``fingerprint`` (None when they are): missing, unreadable, another scene or another config."""
-    from radar4dgs.config import config_difference
+    from radar4dgs.config import config_difference, first_differences
 
     marker = stage_dir / STAGE_MARKER
     if not marker.is_file():
@@ -117,8 +117,7 @@ def stage_difference(stage_dir: Path, stage_config: Any, fingerprint: str) -> st
         return f"{stage_dir}: prepared for another scene.json"
     changed = config_difference(saved.get("config") or {}, to_dict(stage_config))
     if changed:
-        more = f"; and {len(changed) - 3} more" if len(changed) > 3 else ""
-        return f"{stage_dir}: prepared with another config ({'; '.join(changed[:3])}{more})"
+        return f"{stage_dir}: prepared with another config ({first_differences(changed)})"
     return None
 
 

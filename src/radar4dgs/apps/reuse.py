@@ -15,7 +15,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from radar4dgs.config import config_difference, read_config_dict, to_dict
+from radar4dgs.config import config_difference, first_differences, read_config_dict, to_dict
 
 # The force flag's hint, at the end of every refusal.
 FORCE_HINT = "pass --force to overwrite it"
@@ -28,12 +28,6 @@ def read_json(path: Path) -> dict[str, Any] | None:
     except (OSError, json.JSONDecodeError):
         return None
     return value if isinstance(value, dict) else None
-
-
-def first_differences(lines: list[str], limit: int = 3) -> str:
-    """The first ``limit`` differences, and how many more."""
-    more = f"; and {len(lines) - limit} more" if len(lines) > limit else ""
-    return "; ".join(lines[:limit]) + more
 
 
 def config_digest(config: Any) -> str:

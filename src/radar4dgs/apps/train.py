@@ -88,7 +88,8 @@ def existing_run_conflict(out: Path, config, resume: bool) -> str | None:
     """Why training ``config`` into ``out`` would mix with the run already there (None when there
     is none, or when ``resume`` continues a run of the same config): a run of another config,
     which neither a new run nor a resume may reuse, or a run of this config without ``resume``."""
-    from radar4dgs.apps.reuse import FORCE_HINT, first_differences, run_differences
+    from radar4dgs.apps.reuse import FORCE_HINT, run_differences
+    from radar4dgs.config import first_differences
     from radar4dgs.model.run import CHECKPOINT_DIR, CONFIG_FILE, LAST_CHECKPOINT, MODEL_FILE
 
     last, model = out / CHECKPOINT_DIR / LAST_CHECKPOINT, out / MODEL_FILE

@@ -53,7 +53,7 @@ class SynthCommand:
 def existing_scene_difference(out: Path, config: SynthConfig, preset: str) -> str | None:
     """How the folder ``out`` differs from the scene ``config`` and ``preset`` make (None when it
     holds that scene): not a synthetic scene, another preset or seed, or another generator config."""
-    from radar4dgs.config import config_difference
+    from radar4dgs.config import config_difference, first_differences
     from radar4dgs.datasets.synth.generate import config_record
 
     try:
@@ -69,6 +69,5 @@ def existing_scene_difference(out: Path, config: SynthConfig, preset: str) -> st
         return f"made with preset {made[0]!r}, seed {made[1]}, not preset {asked[0]!r}, seed {asked[1]}"
     changed = config_difference(synthetic.get("config") or {}, config_record(config))
     if changed:
-        more = f"; and {len(changed) - 3} more" if len(changed) > 3 else ""
-        return f"made with another generator config: {'; '.join(changed[:3])}{more}"
+        return f"made with another generator config: {first_differences(changed)}"
     return None
