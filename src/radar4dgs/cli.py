@@ -62,6 +62,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "Evaluate a trained run: metrics.json, renders, a video and an HTML report."),
     "bench": ("radar4dgs.apps.bench", "BenchCommand",
         "Train and evaluate every method (baselines and ablations) on every scene; one table."),
+    "batch": ("radar4dgs.apps.batch", "BatchCommand",
+        "Reconstruct many scenes at once on Ray (prepare, train, eval, report per scene); one table."),
     "render": ("radar4dgs.apps.render", "RenderCommand",
         "Re-render a trained run along a camera path: recorded, lane shift, height, bullet time or custom."),
     "export": ("radar4dgs.apps.export", "ExportCommand",

@@ -5,7 +5,10 @@ the method's :func:`radar4dgs.train.variants.variant_config` and evaluated witho
 The grid is resumable: a cell with ``metrics.json`` is reused, one with ``model.pt`` is only
 evaluated, one with a checkpoint resumes training, each only when its ``config.json`` is the
 cell's config; a cell trained with another config fails saying what differs (``--force``
-retrains it). A cell that raises is recorded and the grid goes on. Outputs, rewritten atomically:
+retrains it). A cell that raises is recorded and the grid goes on. With ``--jobs 1`` the cells run
+one after the other in this process; with ``--jobs N`` (N > 1) or ``--address`` each cell is one
+Ray task on the engine of ``radar4dgs batch`` (:mod:`radar4dgs.apps.batch_engine`), N at once,
+retried from its checkpoint when its worker dies. Outputs, rewritten atomically:
 
 - ``OUT/bench.json``: the bench's settings, every cell (status, seconds, metrics summary or error)
   and the per-method means; rewritten after every cell.
@@ -94,7 +97,7 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
               iterations: int | None = None, jobs: int = 1, threads: int | None = None, lpips: bool = True,
               progress: bool = True, runner: Callable[[CellSpec], Mapping[str, Any]] | None = None,
               log: Callable[[str], None] = print, settings: Mapping[str, Any] | None = None,
-              force: bool = False) -> dict[str, Any]:
+              force: bool = False, address: str | None = None) -> dict[str, Any]:
     """Run the grid ``scenes`` x ``methods`` into ``out`` and write bench.json (after every cell),
     table.md, table.csv and ablation.png (at the end, also when interrupted); returns bench.json.
 
@@ -102,6 +105,9 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
     :func:`default_threads`) is each job's torch thread count; ``settings`` (nested TrainConfig
     fields, :func:`parse_overrides`) change every cell's config before its method's own fields;
     ``force`` retrains the cells whose run folder was trained with another configuration.
+    ``jobs`` > 1 or an ``address`` runs the cells as Ray tasks (``jobs`` at once, each declaring
+    ``threads`` CPUs) on a local cluster or on the Ray cluster at ``address``
+    (:func:`radar4dgs.apps.bench_cell.run_grid`).
     """
     methods = check_methods(methods)
     if jobs < 1:
@@ -116,7 +122,7 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
         raise BenchError(str(exc)) from exc
     out = Path(out)
     specs = [CellSpec(scene.label, method, scene.scene, scene.prepared, out / RUNS_DIR / scene.label / method,
-                      preset_name, overrides, lpips, progress and jobs == 1, force)
+                      preset_name, overrides, lpips, progress and jobs == 1 and address is None, force)
              for scene in scenes for method in methods]
     # Seconds of cells this call only reuses come from the previous bench.json.
     previous = previous_cells(out / BENCH_FILE)
@@ -136,7 +142,7 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
     out.mkdir(parents=True, exist_ok=True)
     log(f"bench: {len(scenes)} scene(s) x {len(methods)} method(s) = {len(specs)} cell(s) -> {out / RUNS_DIR}")
     try:
-        run_grid(specs, runner, jobs, on_done)
+        run_grid(specs, runner, jobs, on_done, threads=threads, address=address)
     finally:
         result = bench_payload(config, specs, records, methods)
         atomic_write_json(out / BENCH_FILE, result)
@@ -162,8 +168,10 @@ class BenchCommand:
     preset: PresetName = "small"
     # Training iterations of every cell.
     iterations: Annotated[Optional[int], default_is("the preset's")] = None
-    # Cells trained at once, each in its own process.
+    # Cells trained at once, each a Ray task (1: one after the other in this process).
     jobs: int = 1
+    # Ray cluster for the cells: "auto" or ray://HOST:10001 (with --jobs cells at once there).
+    address: Annotated[Optional[str], default_is("a local cluster when --jobs > 1")] = None
     # TrainConfig fields of every cell, as dotted KEY=VALUE (JSON values), e.g.
     # densify.max_gaussians=40000; a method's own fields (train.variants) still win.
     set: Annotated[tuple[str, ...], default_is("none")] = ()
@@ -187,7 +195,8 @@ class BenchCommand:
             scenes = resolve_scenes(self.scenes, self.synth_seeds, self.synth_preset, self.out, log, self.force)
             settings = parse_overrides(self.set)
             result = run_bench(scenes, methods, self.out, self.preset, self.iterations, self.jobs, self.threads,
-                               self.lpips, progress=not self.quiet, log=log, settings=settings, force=self.force)
+                               self.lpips, progress=not self.quiet, log=log, settings=settings, force=self.force,
+                               address=self.address)
         except BenchError as exc:
             print(f"radar4dgs bench: {exc}", file=sys.stderr)
             return 2

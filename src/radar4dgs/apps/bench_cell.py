@@ -1,14 +1,13 @@
 """Running the bench's cells: one cell brought to its metrics (reusing what its run folder holds),
-a cell's failure recorded instead of raised, and the grid's cells one after the other or in a
-process pool."""
+a cell's failure recorded instead of raised, and the grid's cells one after the other or as Ray
+tasks (:mod:`radar4dgs.apps.batch_engine`, the engine of ``radar4dgs batch``)."""
 
 from __future__ import annotations
 
 import json
-import multiprocessing
+import os
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, Callable, Mapping, Sequence
 
 from radar4dgs.apps.bench_spec import BenchError, CellSpec
@@ -82,24 +81,35 @@ def run_guarded(runner: Callable[[CellSpec], Mapping[str, Any]], spec: CellSpec)
             "metrics": result["metrics"]}
 
 
+def guarded_task(spec: CellSpec, runner: Callable[[CellSpec], Mapping[str, Any]]) -> dict[str, Any]:
+    """:func:`run_guarded` with the engine's argument order (the item first): one Ray task."""
+    return run_guarded(runner, spec)
+
+
 def run_grid(specs: Sequence[CellSpec], runner: Callable[[CellSpec], Mapping[str, Any]], jobs: int,
-             on_done: Callable[[dict[str, Any]], None]) -> None:
-    """Run every cell, one after the other (jobs 1) or in ``jobs`` worker processes, calling
-    ``on_done(record)`` in this process as each finishes. ``runner`` must be picklable (a
-    module-level function) when jobs > 1."""
-    if jobs <= 1 or len(specs) <= 1:
+             on_done: Callable[[dict[str, Any]], None], threads: int = 1, address: str | None = None,
+             retries: int = 2) -> None:
+    """Run every cell and call ``on_done(record)`` in this process as each finishes: one after the
+    other in this process (``jobs`` 1 and no ``address``), else each cell one Ray task
+    (:mod:`radar4dgs.apps.batch_engine`) declaring ``threads`` CPUs, ``jobs`` at once, on a local
+    cluster sized for them or on the cluster at ``address``. A task whose worker dies is retried
+    ``retries`` times and resumes from the cell's checkpoint (:func:`run_cell`). ``runner`` must
+    be picklable (a module-level function) on Ray."""
+    if address is None and (jobs <= 1 or len(specs) <= 1):
         for spec in specs:
             on_done(run_guarded(runner, spec))
         return
-    # spawn: a forked child would inherit torch's thread pools and locks in whatever state they are.
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=context) as pool:
-        futures = {pool.submit(run_guarded, runner, spec): spec for spec in specs}
-        for future in as_completed(futures):
-            try:
-                record = future.result()
-            except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory)
-                spec = futures[future]
-                record = {"scene": spec.scene, "method": spec.method, "run": str(spec.run_dir),
-                          "status": "failed", "seconds": None, "error": f"{type(exc).__name__}: {exc}"}
-            on_done(record)
+    from radar4dgs.apps.batch_engine import Resources, cluster, run_tasks
+
+    def done(index: int, record: dict[str, Any] | None, error: str | None) -> None:
+        if error is not None:  # the worker died (killed, out of memory) on every attempt
+            spec = specs[index]
+            record = {"scene": spec.scene, "method": spec.method, "run": str(spec.run_dir),
+                      "status": "failed", "seconds": None, "error": error}
+        on_done(record)
+
+    # A local cluster with room for `jobs` cells of `threads` CPUs each: --jobs N runs N at once.
+    num_cpus = max(os.cpu_count() or 1, jobs * threads) if address is None else None
+    with cluster(address, num_cpus=num_cpus):
+        run_tasks(guarded_task, specs, resources=Resources(cpus=threads), window=jobs, retries=retries,
+                  retry_exceptions=False, on_done=done, args=(runner,))
