@@ -3,10 +3,13 @@
 The path is built by :func:`radar4dgs.apps.trajectory.build_trajectory` from the scene's recorded
 cameras (every frame, test frames included, in time order) and their normalised times; each pose is
 rendered by the run's model at the pose's time, so dynamic objects move with the scene time
-(``stop-time:T`` freezes them while the camera keeps moving).
+(``stop-time:T`` freezes them while the camera keeps moving). ``nerfstudio:FILE`` renders every
+camera of a nerfstudio camera path instead, with its own field of view, size and render time
+(:mod:`radar4dgs.apps.camera_paths`).
 
 Outputs (``<slug>`` is the spec made file-name safe, e.g. ``lane-shift_2``, ``stop-time_0.5``,
-``custom_<file stem>``, with ``_x<K>`` for ``--interpolate K`` and ``_s<S>`` for ``--scale S``):
+``custom_<file stem>``, ``nerfstudio_<file stem>``, with ``_x<K>`` for ``--interpolate K`` and
+``_s<S>`` for ``--scale S``):
 
 - ``RUN/renders/<slug>/<00000>.png`` one RGB frame per pose; with ``--with-depth`` also
   ``<00000>_depth.png`` and ``<00000>_dynamic.png`` (eval's colour scale and mask threshold);
@@ -19,6 +22,7 @@ Outputs (``<slug>`` is the spec made file-name safe, e.g. ``lane-shift_2``, ``st
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +33,8 @@ import tyro
 
 if TYPE_CHECKING:
     import torch
+
+    from radar4dgs.model.view import View
 
 from radar4dgs.apps.options import default_is
 from radar4dgs.apps.trajectory import CameraPose, TrajectorySpec, build_trajectory, parse_trajectory
@@ -58,8 +64,8 @@ class RenderResult:
 
 def trajectory_slug(spec: TrajectorySpec, interpolate: int = 1, scale: float = 1.0) -> str:
     """File-name-safe name of a rendering: ``recorded``, ``lane-shift_-1.5``, ``custom_loop_x4``, ..."""
-    if spec.kind == "custom":
-        body = f"custom_{spec.path.stem if spec.path is not None else 'path'}"
+    if spec.kind in ("custom", "nerfstudio"):
+        body = f"{spec.kind}_{spec.path.stem if spec.path is not None else 'path'}"
     else:
         body = spec.text.strip().lower().replace(":", "_", 1)
     if interpolate > 1:
@@ -105,6 +111,46 @@ def recorded_cameras(scene) -> tuple[np.ndarray, np.ndarray]:
     return w2c, normalized_times(scene)
 
 
+def trajectory_views(run, trajectory: str, interpolate: int = 1, scale: float = 1.0) -> tuple[str, list[View]]:
+    """(slug, views) of ``trajectory`` for the loaded ``run``: a spec of
+    :mod:`radar4dgs.apps.trajectory` built from the recorded cameras, or ``nerfstudio:FILE``
+    (:mod:`radar4dgs.apps.camera_paths`, every camera of the file)."""
+    from radar4dgs.apps.camera_paths import camera_path_views, is_nerfstudio
+    from radar4dgs.model.view import camera_view
+
+    if is_nerfstudio(trajectory):
+        path = Path(os.path.expanduser(trajectory.strip()[len("nerfstudio:"):].strip()))
+        slug = trajectory_slug(TrajectorySpec(kind="nerfstudio", text=trajectory, path=path), 1, scale)
+        return slug, camera_path_views(path, run.scene.camera, scale)
+    spec = parse_trajectory(trajectory)
+    w2c, times = recorded_cameras(run.scene)
+    poses = build_trajectory(spec, w2c, times, interpolate=interpolate)
+    views = [camera_view(run.scene.camera, p.world_to_camera, p.time, scale) for p in poses]
+    return trajectory_slug(spec, interpolate, scale), views
+
+
+def _check_options(trajectory: str, interpolate: int, scale: float, fps: float) -> None:
+    """Refuse bad options, a bad spec or an unreadable path file before the model loads."""
+    from radar4dgs.apps.camera_paths import is_nerfstudio, read_camera_path
+
+    if isinstance(interpolate, bool) or not isinstance(interpolate, int) or interpolate < 1:
+        raise ValueError(f"--interpolate must be an integer >= 1, got {interpolate!r}")
+    if not (np.isfinite(scale) and 0 < scale <= 4):
+        raise ValueError(f"--scale must lie in (0, 4] (a fraction of the recorded resolution), got {scale}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"--fps must be positive, got {fps}")
+    if not is_nerfstudio(trajectory):
+        parse_trajectory(trajectory)
+        return
+    if interpolate != 1:
+        raise ValueError("--interpolate applies to the recorded-camera specs, not to a nerfstudio camera path "
+                         "(its cameras are already one per frame)")
+    path = Path(os.path.expanduser(trajectory.strip()[len("nerfstudio:"):].strip()))
+    if not path.is_file():
+        raise ValueError(f"trajectory spec {trajectory!r}: {path}: nerfstudio camera path file not found")
+    read_camera_path(path)
+
+
 def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int = 1, with_depth: bool = False,
                       out: Path | None = None, fps: float = 10.0, scale: float = 1.0, device: str | None = None,
                       video: bool = True, progress: bool = True) -> RenderResult:
@@ -113,27 +159,15 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
     or option, FileNotFoundError on an incomplete run, :class:`NonFiniteRenderError` on NaN pixels
     (nothing is left behind then)."""
     from radar4dgs.apps.trajectory import write_custom_trajectory
-    from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, RENDERS_DIR, to_uint8
-    from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
+    from radar4dgs.evaluate.reconstruction import RENDERS_DIR
     from radar4dgs.io.atomic import atomic_directory
-    from radar4dgs.io.preview import save_png
     from radar4dgs.model.run import Run, load_run
-    from radar4dgs.model.view import resized_size
 
-    if isinstance(interpolate, bool) or not isinstance(interpolate, int) or interpolate < 1:
-        raise ValueError(f"--interpolate must be an integer >= 1, got {interpolate!r}")
-    if not (np.isfinite(scale) and 0 < scale <= 4):
-        raise ValueError(f"--scale must lie in (0, 4] (a fraction of the recorded resolution), got {scale}")
-    if not (np.isfinite(fps) and fps > 0):
-        raise ValueError(f"--fps must be positive, got {fps}")
-    spec = parse_trajectory(trajectory)  # a bad spec or custom file fails before the model loads
+    _check_options(trajectory, interpolate, scale, fps)  # a bad spec or file fails before the model loads
     run = run_dir if isinstance(run_dir, Run) else load_run(run_dir, device)
-    w2c, times = recorded_cameras(run.scene)
-    poses = build_trajectory(spec, w2c, times, interpolate=interpolate)
-    slug = trajectory_slug(spec, interpolate, scale)
+    slug, views = trajectory_views(run, trajectory, interpolate, scale)
     frames_dir = Path(out) if out is not None else run.root / RENDERS_DIR / slug
     video_path = (frames_dir / f"{slug}.mp4" if out is not None else run.root / f"{slug}.mp4") if video else None
-    width, height = resized_size(run.scene.camera.width, run.scene.camera.height, scale)
     # The folder is replaced whole: refuse to replace one that is not an earlier rendering (a
     # mistyped --out must not wipe an unrelated folder).
     if frames_dir.exists() and (not frames_dir.is_dir() or (any(frames_dir.iterdir())
@@ -141,34 +175,16 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
         raise ValueError(f"{frames_dir}: exists and is not an earlier `radar4dgs render` output (no "
                          f"{TRAJECTORY_FILE}); choose another --out")
 
-    indices = range(len(poses))
+    indices = range(len(views))
     if progress:
         from tqdm import tqdm
 
         indices = tqdm(indices, desc=f"render {slug}", unit="view")
-
-    def frames(folder: Path) -> Iterator[np.ndarray]:
-        for i in indices:
-            pose = poses[i]
-            rendered = render_pose(run, pose, scale)
-            check_finite(rendered, f"view {i} of trajectory {spec.text!r} (time {pose.time:.4f})")
-            rgb = to_uint8(rendered["rgb"])
-            save_png(folder / f"{i:05d}.png", rgb)
-            if not with_depth:
-                yield rgb
-                continue
-            alpha = rendered["alpha"].cpu().numpy()
-            depth = depth_to_rgb(np.where(alpha > 0.05, rendered["depth"].cpu().numpy(), np.nan),
-                                 near=DEPTH_NEAR, far=DEPTH_FAR)
-            dynamic = mask_to_rgb(rendered["dynamic"].cpu().numpy() > 0.5)
-            save_png(folder / f"{i:05d}_depth.png", depth)
-            save_png(folder / f"{i:05d}_dynamic.png", dynamic)
-            yield side_by_side([rgb, depth, dynamic], [f"render t={pose.time:.3f}", "depth", "dynamic"])
-
     with atomic_directory(frames_dir, overwrite=True) as folder:
-        write_custom_trajectory(folder / TRAJECTORY_FILE, poses)
+        write_custom_trajectory(folder / TRAJECTORY_FILE, [CameraPose(v.world_to_camera, v.time) for v in views])
+        frames = _render_frames(run, views, indices, folder, with_depth, trajectory)
         if video_path is None:
-            for _ in frames(folder):
+            for _ in frames:
                 pass
         else:
             from radar4dgs.evaluate.video import write_video
@@ -176,18 +192,46 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
             # The video is encoded while rendering, so a long path never holds all its frames in
             # memory; with --out it lands inside the temporary folder and moves with it.
             target = folder / video_path.name if out is not None else video_path
-            write_video(frames(folder), target, fps=fps)
-    return RenderResult(frames_dir, video_path, slug, len(poses), width, height)
+            write_video(frames, target, fps=fps)
+    return RenderResult(frames_dir, video_path, slug, len(views), views[0].width, views[0].height)
+
+
+def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bool, label: str) -> Iterator[np.ndarray]:
+    """Render and save each view; yield the video frame of each (rgb, or rgb | depth | dynamic)."""
+    import torch
+
+    from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, render_view, to_uint8
+    from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
+    from radar4dgs.io.preview import save_png
+
+    for i in indices:
+        view = views[i]
+        with torch.no_grad():
+            rendered = render_view(run, view)
+        check_finite(rendered, f"view {i} of trajectory {label!r} (time {view.time:.4f})")
+        rgb = to_uint8(rendered["rgb"])
+        save_png(folder / f"{i:05d}.png", rgb)
+        if not with_depth:
+            yield rgb
+            continue
+        alpha = rendered["alpha"].cpu().numpy()
+        depth = depth_to_rgb(np.where(alpha > 0.05, rendered["depth"].cpu().numpy(), np.nan),
+                             near=DEPTH_NEAR, far=DEPTH_FAR)
+        dynamic = mask_to_rgb(rendered["dynamic"].cpu().numpy() > 0.5)
+        save_png(folder / f"{i:05d}_depth.png", depth)
+        save_png(folder / f"{i:05d}_dynamic.png", dynamic)
+        yield side_by_side([rgb, depth, dynamic], [f"render t={view.time:.3f}", "depth", "dynamic"])
 
 
 @dataclass
 class RenderCommand:
-    """Re-render a trained run along a camera path: recorded, lane shift, height, bullet time or custom."""
+    """Re-render a trained run along a camera path: recorded, lane shift, height, bullet time, custom or nerfstudio."""
 
     # The run folder written by `radar4dgs train`.
     run_dir: tyro.conf.Positional[Path]
     # Camera path: recorded | lane-shift:M (metres, + = left) | height:M (metres, + = up) |
-    # stop-time:T (integer = frame index, decimal = normalised time in [0, 1]) | custom:FILE (JSON).
+    # stop-time:T (integer = frame index, decimal = normalised time in [0, 1]) | custom:FILE (JSON) |
+    # nerfstudio:FILE (a nerfstudio / gsplat viewer camera_path.json: every camera of it).
     trajectory: str = "recorded"
     # Insert K - 1 interpolated views between consecutive poses (smoother video).
     interpolate: int = 1
