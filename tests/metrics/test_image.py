@@ -216,44 +216,102 @@ def test_lpips_without_cached_weights_is_unavailable_and_never_downloads(no_down
             LpipsScorer(net)
 
 
-@pytest.mark.parametrize("net", ["alex", "vgg"])
-def test_lpips_with_a_random_backbone(no_downloads, net):
-    scorer = LpipsScorer(net, pnet_rand=True)
-    assert scorer.name == f"lpips_{net}"
-    pred, gt = _images(9, (48, 64, 3), torch.float32)
-    assert scorer(gt, gt) == pytest.approx(0.0, abs=1e-7)
-    value = scorer(pred, gt)
-    assert value > 1e-4
-    assert scorer(pred.double(), gt.double()) == pytest.approx(value, rel=1e-5)
-    # [0, 1] inputs are given to the network as [-1, 1] ones.
-    with torch.no_grad():
-        direct = scorer.model(2 * pred.permute(2, 0, 1)[None] - 1, 2 * gt.permute(2, 0, 1)[None] - 1)
-    assert float(direct) == pytest.approx(value, rel=1e-5)
+# Output channels of the five slices torchmetrics cuts torchvision's ``features`` into, and the
+# index where each slice starts (torchmetrics.functional.image.lpips.Vgg16 / Alexnet).
+_SLICES = {"vgg16": ([64, 128, 256, 512, 512], [0, 4, 9, 16, 23, 30]),
+           "alexnet": ([64, 192, 384, 256, 256], [0, 2, 5, 8, 10, 12])}
 
 
-def test_lpips_loads_a_cached_backbone_without_downloading(no_downloads):
+def tiny_backbone(name):
+    """A torchvision builder stand-in: ``features`` with torchvision's layer indices and the
+    slices' channel counts, one random 1x1 convolution + ReLU per slice (a few hundred thousand
+    parameters instead of 15 M); the ``weights`` asked for are ignored (nothing is loaded)."""
+    channels, starts = _SLICES[name]
+
+    def build(weights=None, **kwargs):
+        layers, previous = [], 3
+        for out, (lo, hi) in zip(channels, zip(starts[:-1], starts[1:], strict=True), strict=True):
+            layers += [torch.nn.Conv2d(previous, out, 1), torch.nn.ReLU()] + [torch.nn.Identity()] * (hi - lo - 2)
+            previous = out
+        model = torch.nn.Module()
+        model.features = torch.nn.Sequential(*layers)
+        return model
+
+    return build
+
+
+@pytest.fixture
+def tiny_backbones(no_downloads, monkeypatch):
+    """torchvision's vgg16 / alexnet builders replaced by ``tiny_backbone`` (seeded)."""
     import torchvision
 
-    # A stand-in for torchvision's file: alexnet's state dict (features only, to keep it small).
-    torch.manual_seed(123)
-    state = {k: v for k, v in torchvision.models.alexnet().state_dict().items() if k.startswith("features.")}
-    no_downloads.mkdir(parents=True)
-    torch.save(state, no_downloads / "alexnet-owt-7be5be79.pth")
-    assert LpipsScorer.available("alex") and not LpipsScorer.available("vgg")
-    assert lpips_or_none("vgg") is None
+    torch.manual_seed(0)
+    for name in _SLICES:
+        monkeypatch.setattr(torchvision.models, name, tiny_backbone(name))
 
-    scorer = lpips_or_none("alex")
-    assert scorer is not None
-    net = scorer.model.net
-    torch.testing.assert_close(net.slice1[0].weight, state["features.0.weight"])
-    torch.testing.assert_close(dict(net.slice5.named_children())["10"].bias, state["features.10.bias"])
-    pred, gt = _images(10, (40, 40, 3), torch.float32)
+
+def _recording(scorer):
+    """What reaches the LPIPS network (its first layer, the ImageNet scaling layer) and its
+    backbone, recorded at every call."""
+    seen = {"lpips": [], "backbone": []}
+    net = scorer.metric.net
+    net.scaling_layer.register_forward_pre_hook(lambda module, args: seen["lpips"].append(args[0].clone()))
+    # _LPIPS calls its backbone's forward() directly (no hooks): the first slice is hooked instead.
+    net.net.slice1.register_forward_pre_hook(lambda module, args: seen["backbone"].append(args[0].clone()))
+    return seen
+
+
+@pytest.mark.parametrize("net", ["alex", "vgg"])
+def test_lpips_is_torchmetrics_public_metric_in_the_field_convention(tiny_backbones, net):
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+    scorer = LpipsScorer(net, metric=im.lpips_metric(net))
+    assert isinstance(scorer.metric, LearnedPerceptualImagePatchSimilarity)
+    assert scorer.name == f"lpips_{net}"
+    assert scorer.metric.normalize is (net == "alex")
+    pred, gt = _images(9, (48, 64, 3), torch.float32)
+    seen = _recording(scorer)
+    value = scorer(pred, gt)
+    assert value > 1e-6
+    # The input scaling: VGG gets the [0, 1] images as they are (3DGS / gsplat), AlexNet 2x - 1.
+    as_nchw = [pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]]
+    expected = as_nchw if net == "vgg" else [2 * image - 1 for image in as_nchw]
+    assert len(seen["lpips"]) == 2
+    for got, want in zip(seen["lpips"], expected, strict=True):
+        torch.testing.assert_close(got, want)
+    scaling = scorer.metric.net.scaling_layer
+    for got, want in zip(seen["backbone"], expected, strict=True):
+        torch.testing.assert_close(got, scaling(want))
     assert scorer(gt, gt) == pytest.approx(0.0, abs=1e-7)
-    assert scorer(pred, gt) != pytest.approx(LpipsScorer("alex", pnet_rand=True)(pred, gt), rel=1e-3)
+    # The metric keeps no state between frames, and the input dtype does not matter.
+    assert scorer(pred.double(), gt.double()) == pytest.approx(value, rel=1e-5)
+    assert scorer(pred, gt) == pytest.approx(value, rel=1e-6)
 
-    torch.save({"weight": torch.zeros(1)}, no_downloads / "alexnet-owt-7be5be79.pth")
-    with pytest.raises(ValueError, match="features.0.weight"):
-        LpipsScorer("alex")
+
+def test_lpips_refuses_a_metric_of_another_convention(tiny_backbones):
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+    with pytest.raises(ValueError, match="normalize=False"):
+        LpipsScorer("vgg", metric=LearnedPerceptualImagePatchSimilarity(net_type="vgg", normalize=True))
+
+
+def test_lpips_with_cached_weights_builds_the_public_metric(tiny_backbones, monkeypatch):
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+    monkeypatch.setattr(LpipsScorer, "available", classmethod(lambda cls, net: net == "alex"))
+    assert lpips_or_none("vgg") is None
+    scorer = lpips_or_none("alex")
+    assert isinstance(scorer.metric, LearnedPerceptualImagePatchSimilarity)
+    assert scorer.metric.normalize is True
+
+
+def test_lpips_convention_is_stated():
+    convention = im.lpips_convention()
+    assert convention["lpips_vgg"]["net_type"] == "vgg" and convention["lpips_vgg"]["normalize"] is False
+    assert convention["lpips_alex"]["net_type"] == "alex" and convention["lpips_alex"]["normalize"] is True
+    assert "LearnedPerceptualImagePatchSimilarity" in convention["implementation"]
+    assert convention["torchmetrics_version"]
+    json.dumps(convention, allow_nan=False)
 
 
 # --- summary -----------------------------------------------------------------------------------

@@ -48,6 +48,9 @@ class TrainCommand:
     eval: bool = True
     # Hide the progress bar.
     quiet: bool = False
+    # Log the loss terms, PSNR, Gaussian count and memory to TensorBoard in RUN/tb (then the
+    # evaluation's metrics and a few test frames): `tensorboard --logdir RUN/tb`.
+    tensorboard: bool = True
 
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": TrainOptions}
     # A run that cannot train or resume (a non-finite loss, a checkpoint of another config) is a
@@ -72,7 +75,7 @@ class TrainCommand:
         check_prepared_scene(self.scene, prepared)
         # A missing or malformed scene or prepared stage raises a user error: one line (radar4dgs.cli).
         train_run(self.scene, prepared, self.out, config, resume=self.resume and not conflict,
-                  progress=not self.quiet)
+                  progress=not self.quiet, tensorboard=self.tensorboard)
         write_provenance(self.out, preset=self.preset, method=self.method,
                          command=f"radar4dgs train {self.scene} --out {self.out} --preset {self.preset} "
                                  f"--method {self.method} (other options: config.json)")

@@ -5,9 +5,11 @@ It reloads the run's saved config (``RUN/config.json``, ``RUN/run.json``) and mo
 gradient (never through the training loop), and writes:
 
 - ``RUN/metrics.json``: ``{"recon": {...}, "nvs": {...}, "mask_source": ..., "mask_coverage": ...,
-  "psnr_dyn_caveats": [...], "lpips_available": ..., "run": {...}, "per_frame": {"recon": [...],
-  "nvs": [...]}}``; each split holds ``psnr``, ``ssim``, ``lpips_vgg``, ``lpips_alex`` (null
-  without backbone weights), ``psnr_dyn`` (PSNR* over the dynamic-mask pixels, averaged over
+  "psnr_dyn_caveats": [...], "lpips_available": ..., "lpips_convention": {...}, "run": {...},
+  "per_frame": {"recon": [...], "nvs": [...]}}``; each split holds ``psnr``, ``ssim``,
+  ``lpips_vgg``, ``lpips_alex`` (null without backbone weights; computed as
+  ``lpips_convention`` says: VGG on the [0, 1] images as-is, the 3DGS / gsplat convention,
+  AlexNet on them mapped to [-1, 1]), ``psnr_dyn`` (PSNR* over the dynamic-mask pixels, averaged over
   frames whose mask is not empty) and ``n_frames``. Reconstruction = training frames, novel-view
   synthesis (nvs) = test frames (every 4th). ``mask_coverage``: per split, the fraction of the
   pixels the PSNR* masks cover; ``predicted_mask_recall``: per split, the fraction of the
@@ -20,6 +22,8 @@ gradient (never through the training loop), and writes:
   (preset, method, config hash, code version, training time).
 - ``RUN/renders/{recon,nvs}/<frame>.png`` and ``<frame>_depth.png``, ``<frame>_dynamic.png``.
 - ``RUN/video.mp4``: ground truth | render | depth | dynamic mask, every frame in time order.
+- ``RUN/tb/``: when the run has a TensorBoard log (training keeps one unless ``--no-tensorboard``),
+  the metrics as ``val/*`` (test frames) and ``recon/*`` (training frames) and a few test frames.
 - ``RUN/report.html``: what made the run, metrics and their caveats, per-frame PSNR, loss curves
   and test-frame panels (one file; it links ``config.json``, ``metrics.json`` and the video beside it).
 
@@ -43,8 +47,9 @@ import torch
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
 from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
-from radar4dgs.metrics.image import LpipsScorer, lpips_or_none, psnr, ssim, summarize_frames
+from radar4dgs.metrics.image import LpipsScorer, lpips_convention, lpips_or_none, psnr, ssim, summarize_frames
 from radar4dgs.model.run import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, Run, load_run
+from radar4dgs.model.run_log import TB_DIR, TensorBoard
 from radar4dgs.model.view import View, frame_view
 
 METRICS_FILE = "metrics.json"
@@ -59,6 +64,10 @@ MIN_MASK_COVERAGE = 0.005
 MIN_MASK_RECALL = 0.5
 # One colour scale for every depth picture of a run, so the video does not flicker (metres).
 DEPTH_NEAR, DEPTH_FAR = 2.0, 120.0
+# Test frames (ground truth | render) added to the run's TensorBoard log.
+TB_IMAGES = 4
+# The per-split metrics added to TensorBoard: nvs as val/<key>, recon as recon/<key>.
+TB_METRICS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "psnr_dyn")
 
 
 def to_uint8(image: torch.Tensor) -> np.ndarray:
@@ -221,6 +230,17 @@ def radar_overlay(scene, index: int, image: np.ndarray) -> np.ndarray:
                               radius=max(1, W // 240))
 
 
+def score_frame(rgb: torch.Tensor, gt: torch.Tensor, mask: np.ndarray,
+                scorers: dict[str, LpipsScorer | None]) -> dict[str, Any]:
+    """``psnr``, ``ssim``, ``psnr_dyn`` (None for an empty ``mask``), ``dynamic_pixels`` and
+    ``lpips_<net>`` (None without a scorer) of one frame's clamped render ``rgb`` against ``gt``."""
+    entry = {"psnr": psnr(rgb, gt), "ssim": ssim(rgb, gt),
+             "psnr_dyn": psnr(rgb, gt, torch.as_tensor(mask, device=rgb.device)) if mask.any() else None,
+             "dynamic_pixels": int(mask.sum())}
+    entry.update({f"lpips_{net}": scorer(rgb, gt) if scorer is not None else None for net, scorer in scorers.items()})
+    return entry
+
+
 def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = True, video: bool = True,
                  report: bool = True, progress: bool = True) -> dict[str, Any]:
     """Evaluate ``run_dir`` and write its metrics, renders, video and report; returns the metrics."""
@@ -235,6 +255,7 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
     source = mask_source(run)
     per_frame: dict[str, list[dict]] = {"recon": [], "nvs": []}
     frames_video, panels = [], []
+    tb_images: dict[str, np.ndarray] | None = {} if (run.root / TB_DIR).is_dir() else None
     indices = range(len(scene))
     if progress:
         from tqdm import tqdm
@@ -252,13 +273,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
             device_ = out["rgb"].device
             gt = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0, device=device_)
             mask = dynamic_mask(run, index, source)
-            mask_t = torch.as_tensor(mask, device=device_)
             rgb = out["rgb"].clamp(0, 1)
-            entry = {"frame": name, "index": index, "psnr": psnr(rgb, gt), "ssim": ssim(rgb, gt),
-                     "psnr_dyn": psnr(rgb, gt, mask_t) if mask.any() else None,
-                     "dynamic_pixels": int(mask.sum())}
-            for net, scorer in scorers.items():
-                entry[f"lpips_{net}"] = scorer(rgb, gt) if scorer is not None else None
+            entry = {"frame": name, "index": index, **score_frame(rgb, gt, mask, scorers)}
             found = trained_mask_recall(run, index, source, mask)
             if found is not None:
                 entry["trained_mask_hits"] = found[0]
@@ -267,9 +283,10 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
             depth_u8 = depth_to_rgb(np.where(out["alpha"].cpu().numpy() > 0.05, out["depth"].cpu().numpy(), np.nan),
                                     near=DEPTH_NEAR, far=DEPTH_FAR)
             dyn_u8 = mask_to_rgb(out["dynamic"].cpu().numpy() > 0.5)
-            save_png(folders[split] / f"{name}.png", render_u8)
-            save_png(folders[split] / f"{name}_depth.png", depth_u8)
-            save_png(folders[split] / f"{name}_dynamic.png", dyn_u8)
+            for suffix, image in (("", render_u8), ("_depth", depth_u8), ("_dynamic", dyn_u8)):
+                save_png(folders[split] / f"{name}{suffix}.png", image)
+            if tb_images is not None and split == "nvs" and len(tb_images) < TB_IMAGES:
+                tb_images[f"val/gt_render/{name}"] = np.concatenate([gt_u8, render_u8], axis=1)
             if video:
                 frames_video.append(side_by_side([gt_u8, render_u8, depth_u8, dyn_u8],
                                                  ["ground truth", f"render ({split})", "depth", "dynamic"]))
@@ -285,7 +302,7 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         "recon": summarize_frames(per_frame["recon"]), "nvs": summarize_frames(per_frame["nvs"]),
         "mask_source": source, "mask_coverage": coverage, "predicted_mask_recall": recall,
         "psnr_dyn_flagged": psnr_dyn_flags(coverage, recall), "psnr_dyn_caveats": caveats,
-        "lpips_available": all(s is not None for s in scorers.values()),
+        "lpips_available": all(s is not None for s in scorers.values()), "lpips_convention": lpips_convention(),
         "method": run.config.method, "num_gaussians": run.model.num_gaussians,
         "run": run_record(run),
         "per_frame": per_frame,
@@ -296,33 +313,57 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         write_video(frames_video, run.root / VIDEO_FILE, fps=10)
     metrics["eval_seconds"] = time.perf_counter() - started
     atomic_write_json(run.root / METRICS_FILE, metrics)
+    if tb_images is not None:
+        log_tensorboard(run, metrics, tb_images)
     if report:
-        from radar4dgs.evaluate.report import write_report
-
-        history_path = run.root / HISTORY_FILE
-        history = json.loads(history_path.read_text())["history"] if history_path.is_file() else []
-        record = metrics["run"]
-        run_info = {"preset": record["preset"] or "not recorded (no provenance.json)",
-                    "method": record["method"], "command": record["command"],
-                    "config hash": record["config_hash"], "iterations": record["iterations"],
-                    "training time": _duration(record["train_seconds"]),
-                    "evaluation time": _duration(metrics["eval_seconds"]),
-                    "code version": record["code_version"], "trained with version": record["trained_with_version"],
-                    "PSNR* masks": f"{source} ({_coverage_text(coverage)})"}
-        if recall is not None:
-            run_info["predicted masks' recall of the gt dynamic pixels"] = ", ".join(
-                f"{split} {value:.1%}" for split, value in recall.items() if value is not None) or None
-        links = {"resolved config": CONFIG_FILE, "metrics": METRICS_FILE}
-        has_video = video and (run.root / VIDEO_FILE).is_file()
-        if has_video:
-            links["video"] = VIDEO_FILE
-        write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.resolve()}",
-                     metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
-                     per_frame=per_frame, history=loss_curves(history), panels=panels,
-                     run_info=run_info, caveats=caveats, links=links, video=VIDEO_FILE if has_video else None,
-                     config=_read_json(run.root / CONFIG_FILE).get("config"),
-                     flagged=[split for split, flag in metrics["psnr_dyn_flagged"].items() if flag])
+        write_run_report(run, metrics, per_frame, panels, video)
     return metrics
+
+
+def write_run_report(run: Run, metrics: dict[str, Any], per_frame: dict[str, list[dict]], panels: list[dict],
+                     video: bool) -> None:
+    """``RUN/report.html`` of the evaluation ``metrics`` (``evaluate_run``'s), its ``per_frame``
+    entries and test-frame ``panels``; ``video``: whether ``RUN/video.mp4`` was written."""
+    from radar4dgs.evaluate.report import write_report
+
+    history_path = run.root / HISTORY_FILE
+    history = json.loads(history_path.read_text())["history"] if history_path.is_file() else []
+    record = metrics["run"]
+    run_info = {"preset": record["preset"] or "not recorded (no provenance.json)",
+                "method": record["method"], "command": record["command"],
+                "config hash": record["config_hash"], "iterations": record["iterations"],
+                "training time": _duration(record["train_seconds"]),
+                "evaluation time": _duration(metrics["eval_seconds"]),
+                "code version": record["code_version"], "trained with version": record["trained_with_version"],
+                "PSNR* masks": f"{metrics['mask_source']} ({_coverage_text(metrics['mask_coverage'])})"}
+    recall = metrics["predicted_mask_recall"]
+    if recall is not None:
+        run_info["predicted masks' recall of the gt dynamic pixels"] = ", ".join(
+            f"{split} {value:.1%}" for split, value in recall.items() if value is not None) or None
+    links = {"resolved config": CONFIG_FILE, "metrics": METRICS_FILE}
+    has_video = video and (run.root / VIDEO_FILE).is_file()
+    if has_video:
+        links["video"] = VIDEO_FILE
+    write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.resolve()}",
+                 metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
+                 per_frame=per_frame, history=loss_curves(history), panels=panels,
+                 run_info=run_info, caveats=metrics["psnr_dyn_caveats"], links=links,
+                 video=VIDEO_FILE if has_video else None,
+                 config=_read_json(run.root / CONFIG_FILE).get("config"),
+                 flagged=[split for split, flag in metrics["psnr_dyn_flagged"].items() if flag])
+
+
+def log_tensorboard(run: Run, metrics: dict[str, Any], images: dict[str, np.ndarray]) -> None:
+    """Add the evaluation to the run's TensorBoard log (``RUN/tb``, kept by training unless
+    ``--no-tensorboard``) at the run's last iteration: ``val/<metric>`` of the test frames (as
+    gsplat's ``val/psnr``, ...), ``recon/<metric>`` of the training frames, ``val/num_GS`` and
+    ``images`` (ground truth | render). A failure is reported, never raised."""
+    step = run.config.optim.iterations
+    with TensorBoard(run.root / TB_DIR, log=lambda line: warnings.warn(line, stacklevel=2)) as tb:
+        scalars = {f"{tag}/{key}": metrics[split].get(key) for split, tag in (("nvs", "val"), ("recon", "recon"))
+                   for key in TB_METRICS}
+        tb.scalars({**scalars, "val/num_GS": metrics["num_gaussians"]}, step)
+        tb.images(images, step)
 
 
 def _duration(seconds: float | None) -> str | None:

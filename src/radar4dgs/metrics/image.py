@@ -26,11 +26,14 @@ Definitions, so that a reported number can be reproduced:
     whose import takes seconds. The trainer's D-SSIM term is ``1 - ssim_loss_value(pred, gt)``, so
     training and evaluation measure the same SSIM.
 ``lpips_vgg`` / ``lpips_alex``
-    LPIPS v0.1 (Zhang et al. 2018) with the VGG-16 or AlexNet ImageNet backbone of torchvision and
-    the linear calibration layers shipped with torchmetrics; inputs ``[0, 1]`` mapped to
-    ``[-1, 1]``; features of the full-resolution image, spatially averaged. Available only when the
-    backbone file is already in the torch hub cache (``LpipsScorer.weights_path``): nothing here
-    downloads, and the metric is ``None`` otherwise.
+    LPIPS v0.1 (Zhang et al. 2018) through torchmetrics' public
+    ``LearnedPerceptualImagePatchSimilarity`` (the VGG-16 or AlexNet ImageNet backbone of
+    torchvision and the linear calibration layers shipped with torchmetrics; features of the
+    full-resolution image, spatially averaged), in the field's convention (``LPIPS_CONVENTION``,
+    as gsplat's trainer): ``lpips_vgg`` is given the ``[0, 1]`` images as they are
+    (``normalize=False``, the 3DGS convention), ``lpips_alex`` the images mapped to ``[-1, 1]``
+    (``normalize=True``). Available only when the backbone file is already in the torch hub cache
+    (``LpipsScorer.weights_path``): nothing here downloads, and the metric is ``None`` otherwise.
 ``psnr_dyn`` (PSNR*)
     ``psnr`` over the pixels of a frame's dynamic mask, averaged over the frames whose mask is not
     empty (``summarize_frames``); which mask (gt or predicted) is the caller's to state.
@@ -41,7 +44,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Literal, Optional, Sequence
+from typing import Any, Literal, Optional, Sequence
 from urllib.parse import urlparse
 
 import torch
@@ -255,9 +258,34 @@ def ssim_loss_value(pred: Tensor, gt: Tensor) -> Tensor:
 
 # --- LPIPS -------------------------------------------------------------------------------------
 
-# LPIPS backbone name -> (torchvision builder name, torchvision weights enum name). torchmetrics'
-# _LPIPS loads the enums' DEFAULT weights, so the same file is looked for here.
+# LPIPS backbone name -> (torchvision builder name, torchvision weights enum name): the
+# ImageNet backbones torchmetrics' LearnedPerceptualImagePatchSimilarity builds.
 _BACKBONES = {"vgg": ("vgg16", "VGG16_Weights"), "alex": ("alexnet", "AlexNet_Weights")}
+
+# How each LPIPS figure is computed (written to metrics.json as "lpips_convention"). The field's
+# convention, so that a figure sits beside 3DGS, PVG or a gsplat run: gsplat's trainer feeds the
+# [0, 1] images unchanged to LPIPS-VGG (normalize=False: "The 3DGS official repo uses lpips vgg,
+# which is equivalent with the following") and maps them to [-1, 1] for AlexNet (normalize=True).
+LPIPS_CONVENTION: dict[str, dict[str, Any]] = {
+    "lpips_vgg": {"net_type": "vgg", "normalize": False,
+                  "input": "[0, 1] images fed as-is (the 3DGS / gsplat convention for LPIPS-VGG)"},
+    "lpips_alex": {"net_type": "alex", "normalize": True,
+                   "input": "[0, 1] images mapped to [-1, 1] (2x - 1; gsplat's LPIPS-Alex)"},
+}
+
+
+def lpips_convention() -> dict[str, Any]:
+    """:data:`LPIPS_CONVENTION` with the implementation and the torchmetrics version that ran it."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        torchmetrics_version: Optional[str] = version("torchmetrics")
+    except PackageNotFoundError:  # pragma: no cover - torchmetrics is a dependency
+        torchmetrics_version = None
+    return {**{key: dict(value) for key, value in LPIPS_CONVENTION.items()},
+            "implementation": "torchmetrics.image.lpip.LearnedPerceptualImagePatchSimilarity "
+                              "(reduction='mean'; LPIPS v0.1 linear layers)",
+            "torchmetrics_version": torchmetrics_version}
 
 
 def _check_net(net: str) -> None:
@@ -265,41 +293,46 @@ def _check_net(net: str) -> None:
         raise ValueError(f"LPIPS net must be one of {sorted(_BACKBONES)}, got {net!r}")
 
 
+def lpips_metric(net: LpipsNet) -> Any:
+    """torchmetrics' public ``LearnedPerceptualImagePatchSimilarity`` for ``net`` in the field's
+    convention (:data:`LPIPS_CONVENTION`). torchmetrics has torchvision build the ImageNet backbone,
+    which reads it from the torch hub cache, or downloads it when it is not there: call it only
+    when ``LpipsScorer.available(net)`` (or with torchvision's builder replaced, in tests)."""
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+    _check_net(net)
+    return LearnedPerceptualImagePatchSimilarity(net_type=net, reduction="mean",
+                                                 normalize=LPIPS_CONVENTION[f"lpips_{net}"]["normalize"])
+
+
 class LpipsScorer:
     """LPIPS (module doc) with the ``"vgg"`` or ``"alex"`` backbone; built once, reused per frame.
 
     ``LpipsScorer(net)`` needs the torchvision ImageNet backbone in the torch hub cache
-    (``weights_path(net)``) and raises ``FileNotFoundError`` otherwise; it never downloads: the
-    backbone file is read here with ``torch.load``, torchvision's downloading loader is not called.
-    ``pnet_rand=True`` uses a randomly initialised backbone instead (seeded by ``seed``): the
-    numbers mean nothing, it exists for tests of the code path on machines without the weights.
+    (``weights_path(net)``) and raises ``FileNotFoundError`` otherwise: nothing is downloaded
+    (torchvision's loader reads the cached file). ``metric``: a metric built by the caller
+    instead (tests give one with a random backbone); its ``normalize`` must be the convention's.
 
     ``scorer(pred, gt)``: ``(H, W, 3)`` images in ``[0, 1]``, any device (the network follows the
     inputs), returns a float >= 0, 0 for identical images.
     """
 
     def __init__(self, net: LpipsNet = "vgg", device: torch.device | str | None = None,
-                 pnet_rand: bool = False, seed: int = 0) -> None:  # fmt: skip
-        from torchmetrics.functional.image.lpips import _LPIPS
-
+                 metric: Any = None) -> None:  # fmt: skip
         _check_net(net)
         self.net = net
-        self.pnet_rand = pnet_rand
-        if not pnet_rand and not self.available(net):
-            raise FileNotFoundError(
-                f"LPIPS-{net}: no backbone weights at {self.weights_path(net)} (torchvision's ImageNet "
-                f"{_BACKBONES[net][0]}); copy the file there, nothing is downloaded"
-            )
-        # pnet_rand=True always: torchmetrics would otherwise fetch the backbone through
-        # torchvision's downloader; the cached file is loaded below instead. The linear layers
-        # (pretrained=True) ship inside torchmetrics.
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(seed)
-            model = _LPIPS(pretrained=True, net=net, pnet_rand=True)
-        if not pnet_rand:
-            _load_backbone(model.net, self.weights_path(net))
-        model.eval().requires_grad_(False)
-        self.model = model.to(device) if device is not None else model
+        if metric is None:
+            if not self.available(net):
+                raise FileNotFoundError(
+                    f"LPIPS-{net}: no backbone weights at {self.weights_path(net)} (torchvision's ImageNet "
+                    f"{_BACKBONES[net][0]}); copy the file there, nothing is downloaded"
+                )
+            metric = lpips_metric(net)
+        expected = LPIPS_CONVENTION[self.name]["normalize"]
+        if getattr(metric, "normalize", None) is not expected:
+            raise ValueError(f"{self.name}: the metric must have normalize={expected} (LPIPS_CONVENTION)")
+        metric.eval().requires_grad_(False)
+        self.metric = metric.to(device) if device is not None else metric
 
     @staticmethod
     def weights_path(net: LpipsNet) -> Path:
@@ -325,37 +358,16 @@ class LpipsScorer:
 
     def __call__(self, pred: Tensor, gt: Tensor) -> float:
         _check_pair(pred, gt, self.name)
-        model_device = next(self.model.parameters()).device
-        if model_device != pred.device:
-            self.model.to(pred.device)
+        if self.metric.device != pred.device:
+            self.metric.to(pred.device)
         with torch.inference_mode():
             x = pred.to(torch.float32).permute(2, 0, 1)[None]
             y = gt.to(torch.float32).permute(2, 0, 1)[None]
-            return float(self.model(x, y, normalize=True).reshape(()))
-
-
-def _load_backbone(features_net: torch.nn.Module, path: Path) -> None:
-    """Copy the ``features.<i>.*`` tensors of a torchvision checkpoint into torchmetrics' slices.
-
-    torchmetrics' Vgg16/Alexnet split ``features`` into ``slice1..5`` whose children keep the
-    original indices as names, so ``features.<i>.weight`` goes to the child named ``<i>``.
-    """
-    state = torch.load(path, map_location="cpu", weights_only=True)
-    layers = {name: layer for part in features_net.children() for name, layer in part.named_children()}
-    loaded = 0
-    with torch.no_grad():
-        for index, layer in layers.items():
-            for pname, param in layer.named_parameters(recurse=False):
-                key = f"features.{index}.{pname}"
-                if key not in state:
-                    raise ValueError(f"{path}: no {key}; not torchvision's checkpoint for this backbone")
-                if state[key].shape != param.shape:
-                    raise ValueError(f"{path}: {key} is {tuple(state[key].shape)}, "
-                                     f"expected {tuple(param.shape)}")
-                param.copy_(state[key])
-                loaded += 1
-    if loaded == 0:
-        raise ValueError(f"{path}: no backbone parameters were loaded")
+            self.metric.reset()
+            self.metric.update(x, y)
+            value = float(self.metric.compute())
+            self.metric.reset()
+        return value
 
 
 def lpips_or_none(net: LpipsNet, device: torch.device | str | None = None) -> Optional[LpipsScorer]:

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from radar4dgs.config import read_config_dict, save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames
@@ -41,6 +42,7 @@ from radar4dgs.model.run import (
     MODEL_FILE,
     RUN_FILE,
 )
+from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.train.data import FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
@@ -115,11 +117,14 @@ class Trainer:
     """Trains one run folder. ``train()`` starts fresh or, with ``resume``, from the last checkpoint."""
 
     def __init__(self, scene_path: Path, prepared: Path, out: Path, config: TrainConfig,
-                 progress: bool = True, log: Callable[[str], None] = print):
+                 progress: bool = True, log: Callable[[str], None] = print, tensorboard: bool = True):
         self.scene_path, self.prepared, self.out = Path(scene_path), Path(prepared), Path(out)
         self.config = config
         self.progress = progress
         self.log = log
+        # history.json at every log step, and TensorBoard in RUN/tb unless tensorboard is False.
+        self.tensorboard = tensorboard
+        self.train_log: TrainLog | None = None
         self.device = torch.device(config.device)
         self.dtype = torch.float32
         self._points: dict[str, np.ndarray] | None = None
@@ -194,7 +199,8 @@ class Trainer:
             if self.config.dynamic_lifespan_reference_px > 0 and len(frames):
                 speeds = image_speeds(points["points"][points["dynamic"]], frames, self.times, state.model.field,
                                       self.scene)
-                reference = self.config.dynamic_lifespan_reference_px * self.scene.camera.width / 320
+                width_scale = self.scene.camera.width / IMAGE_MOTION_REFERENCE_WIDTH
+                reference = self.config.dynamic_lifespan_reference_px * width_scale
                 lifespan = speed_scaled_lifespans(speeds, lifespan, reference, float(np.min(np.diff(self.times))))
                 self.log(f"stage 2: dynamic life spans {lifespan.min():.3f}-{lifespan.max():.3f} "
                          f"(median speed {np.median(speeds):.1f} px per frame)")
@@ -267,12 +273,23 @@ class Trainer:
         config = self.config
         total = config.optim.iterations
         end = total if stop_after is None else min(total, state.step + stop_after)
+        self.train_log = TrainLog(self.out, self.device, LOSS_TERMS, HISTORY_FILE, self.tensorboard, state.step,
+                                  self.log)
         bar = None
         if self.progress:
             from tqdm import tqdm
 
             bar = tqdm(total=total, initial=state.step, desc="train", unit="it", dynamic_ncols=True)
         started = time.perf_counter()
+        try:
+            self._loop(state, end, bar)
+        finally:
+            self.train_log.close()
+        if state.step >= total:
+            self.finish(state, time.perf_counter() - started)
+        return state
+
+    def _loop(self, state: RunState, end: int, bar) -> None:
         while state.step < end:
             self._iteration(state)
             state.step += 1
@@ -282,22 +299,21 @@ class Trainer:
                     h = state.history[-1]
                     bar.set_postfix({"stage": h["stage"], "psnr": f"{h['psnr']:.2f}", "loss": f"{h['total']:.4f}",
                                      "N": state.model.num_gaussians}, refresh=False)
-            every = config.checkpoint_every
+            every = self.config.checkpoint_every
             if (every > 0 and state.step % every == 0) or state.step == end:
                 self.save_checkpoint(state)
         if bar is not None:
             bar.close()
-        if state.step >= total:
-            self.finish(state, time.perf_counter() - started)
-        return state
 
     def finish(self, state: RunState, seconds: float) -> None:
         atomic_save_torch(self.out / MODEL_FILE, {"model": state.model.payload(), "step": state.step,
                                                   "config": to_dict(self.config)})
-        atomic_write_json(self.out / HISTORY_FILE, {"history": state.history, "train_seconds_last_call": seconds,
-                                                    "num_static": len(state.model.static),
-                                                    "num_dynamic": 0 if state.model.dynamic is None
-                                                    else len(state.model.dynamic)})
+        atomic_write_json(self.out / HISTORY_FILE, history_payload(state.history, *self._counts(state), seconds))
+
+    @staticmethod
+    def _counts(state: RunState) -> tuple[int, int]:
+        """(static, dynamic) Gaussians."""
+        return len(state.model.static), 0 if state.model.dynamic is None else len(state.model.dynamic)
 
     def _iteration(self, state: RunState) -> None:
         config, step = self.config, state.step
@@ -343,6 +359,8 @@ class Trainer:
                                   "total": float(loss.detach()),
                                   "psnr": psnr_of(render["rgb"], target.image), "num_gaussians": model.num_gaussians,
                                   **{k: float(v.detach()) for k, v in losses.items()}})
+            if self.train_log is not None:
+                self.train_log.step(state.history, *self._counts(state))
 
     def _densify(self, state: RunState, render: dict, stage: int, trainable: list[str],
                  generator: torch.Generator) -> None:
@@ -376,6 +394,8 @@ class Trainer:
 
 
 def train_run(scene_path: Path, prepared: Path, out: Path, config: TrainConfig, resume: bool = False,
-              progress: bool = True, stop_after: int | None = None) -> RunState:
-    """Train ``scene_path`` with its ``prepared`` folder into run folder ``out``."""
-    return Trainer(scene_path, prepared, out, config, progress=progress).train(resume=resume, stop_after=stop_after)
+              progress: bool = True, stop_after: int | None = None, tensorboard: bool = True) -> RunState:
+    """Train ``scene_path`` with its ``prepared`` folder into run folder ``out`` (TensorBoard
+    events in ``out/tb`` unless ``tensorboard`` is False)."""
+    return Trainer(scene_path, prepared, out, config, progress=progress,
+                   tensorboard=tensorboard).train(resume=resume, stop_after=stop_after)
