@@ -65,9 +65,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "batch": ("radar4dgs.apps.batch", "BatchCommand",
         "Reconstruct many scenes at once on Ray (prepare, train, eval, report per scene); one table."),
     "render": ("radar4dgs.apps.render", "RenderCommand",
-        "Re-render a trained run along a camera path: recorded, lane shift, height, bullet time or custom."),
+        "Re-render a trained run along a camera path: recorded, lane shift, height, bullet time, custom, nerfstudio."),
     "export": ("radar4dgs.apps.export", "ExportCommand",
-        "Export a trained run's Gaussians (static, or static + dynamic at one time) as a 3DGS .ply."),
+        "Export a trained run: its Gaussians (.ply, a gsplat checkpoint, .splat) or its cameras (nerfstudio, COLMAP)."),
     "view": ("radar4dgs.apps.view", "ViewCommand",
         "Browse a trained run in a web browser (viser): Gaussian splats, a time slider, CPU renders."),
 }

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, ClassVar, Optional
 
 import tyro
 
@@ -22,7 +22,19 @@ class EvalCommand:
     video: bool = True  # write RUN/video.mp4
     report: bool = True  # write RUN/report.html
 
+    # A run folder another process holds is a one-line error (radar4dgs.cli).
+    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.io.locks.FolderInUseError",)
+
     def run(self) -> int:
+        from radar4dgs.io.atomic import remove_dead_temporaries
+        from radar4dgs.io.locks import folder_lock
+
+        # One process per run folder (train holds it while it evaluates: the lock is re-entrant).
+        with folder_lock(self.run_dir):
+            remove_dead_temporaries(self.run_dir, recursive=True)
+            return self._evaluate()
+
+    def _evaluate(self) -> int:
         from radar4dgs.evaluate.reconstruction import (
             METRICS_FILE,
             RENDERS_DIR,

@@ -22,7 +22,8 @@ from tqdm import tqdm
 from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName, save_config, to_dict
 from radar4dgs.depth.config import DepthConfig
-from radar4dgs.io.atomic import atomic_directory, atomic_write_json
+from radar4dgs.io.atomic import atomic_directory, atomic_write_json, remove_dead_temporaries
+from radar4dgs.io.locks import folder_lock
 from radar4dgs.io.scene import Scene, read_scene
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import run_flow_stage
@@ -135,6 +136,16 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
     unknown = [name for name in only if name not in known]
     if unknown:
         raise ValueError(f"unknown stage(s) {unknown}; stages are {known}")
+    # One process per prepared folder (another one's is refused in one line); what dead runs left
+    # half-written there is removed first.
+    with folder_lock(prepared):
+        remove_dead_temporaries(prepared, recursive=True)
+        return _run_stages(scene, prepared, config, force, only, progress)
+
+
+def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool, only: tuple[str, ...],
+                progress: bool) -> dict[str, str]:
+    known = [s.name for s in STAGES]
     prepared.mkdir(parents=True, exist_ok=True)
     save_config(config, prepared / "config.json")
     fingerprint = scene_fingerprint(scene)
@@ -195,7 +206,8 @@ class PrepareCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": PrepareConfig}
 
     # A depth model that cannot load is a one-line error too (radar4dgs.cli).
-    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.depth.sources.DepthModelError",)
+    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.depth.sources.DepthModelError",
+                                               "radar4dgs.io.locks.FolderInUseError")
 
     def run(self) -> int:
         # A missing or malformed scene or a bad option raises a user error: one line (radar4dgs.cli).

@@ -225,7 +225,7 @@ def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bo
 
 @dataclass
 class RenderCommand:
-    """Re-render a trained run along a camera path: recorded, lane shift, height, bullet time, custom or nerfstudio."""
+    """Re-render a trained run along a camera path: recorded, lane shift, height, bullet time, custom, nerfstudio."""
 
     # The run folder written by `radar4dgs train`.
     run_dir: tyro.conf.Positional[Path]

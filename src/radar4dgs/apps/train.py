@@ -55,9 +55,20 @@ class TrainCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": TrainOptions}
     # A run that cannot train or resume (a non-finite loss, a checkpoint of another config) is a
     # one-line error too (radar4dgs.cli).
-    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.train.trainer.TrainingError",)
+    USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.train.trainer.TrainingError",
+                                               "radar4dgs.io.locks.FolderInUseError")
 
     def run(self) -> int:
+        from radar4dgs.io.atomic import remove_dead_temporaries
+        from radar4dgs.io.locks import folder_lock
+
+        # One process per run folder (another one's is refused in one line); what dead runs left
+        # half-written there (checkpoints, renders) is removed first.
+        with folder_lock(self.out):
+            remove_dead_temporaries(self.out, recursive=True)
+            return self._train()
+
+    def _train(self) -> int:
         from radar4dgs.evaluate.reconstruction import write_provenance
         from radar4dgs.train.trainer import train_run
         from radar4dgs.train.variants import apply_variant

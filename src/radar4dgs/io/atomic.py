@@ -1,4 +1,11 @@
-"""Write-then-rename helpers, so that an interrupted run never leaves a half-written output."""
+"""Write-then-rename helpers, so that an interrupted run never leaves a half-written output.
+
+Every temporary name carries its owner: ``.<name>.<pid>@<host>.<8 random chars><suffix>`` (e.g.
+``prepared/.flow.4242@box.k2j9x_0a.tmp``). Before a helper creates a temporary it removes the
+siblings of that form whose owner is gone (same host, pid not alive), so a run killed half-way
+(``kill -9``, a power cut) leaves nothing behind once the next run writes there; a live run's
+temporaries, and those of other hosts (a shared disk), are left alone.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +13,9 @@ import contextlib
 import io
 import json
 import os
+import re
 import shutil
+import socket
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -17,6 +26,65 @@ import numpy as np
 _FILE_MODE = 0o644
 _DIR_MODE = 0o755
 
+# This host as a temporary name carries it (letters, digits and "-" only).
+HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:40] or "localhost"
+# ".<target>.<pid>@<host>.<mkstemp's 8 random chars><suffix>" (".tmp", ".old", or a writer's own).
+TEMP_NAME = re.compile(r"^\.(?P<target>.+)\.(?P<pid>[0-9]+)@(?P<host>[A-Za-z0-9-]+)\.[a-z0-9_]{8}\.[A-Za-z0-9.]+$")
+# Folders whose dead temporaries atomic_path has already removed in this process (once each).
+_CLEANED: set[Path] = set()
+
+
+def temp_prefix(name: str) -> str:
+    """The start of a temporary name for target ``name`` owned by this process."""
+    return f".{name}.{os.getpid()}@{HOST}."
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host (a process of another user counts as alive;
+    off POSIX, every pid does: nothing is removed there)."""
+    if os.name != "posix" or pid <= 0:
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OverflowError:
+        return False
+    return True
+
+
+def dead_temporary(name: str) -> bool:
+    """Whether ``name`` is a temporary of this module whose owner (pid on this host) is gone."""
+    match = TEMP_NAME.match(name)
+    if match is None or match["host"] != HOST:
+        return False
+    pid = int(match["pid"])
+    return pid != os.getpid() and not pid_alive(pid)
+
+
+def remove_dead_temporaries(folder: str | os.PathLike, recursive: bool = False) -> list[Path]:
+    """Delete the temporaries (files and folders) that dead runs left in ``folder`` (and its
+    subfolders with ``recursive``); returns them. A missing folder has none."""
+    removed: list[Path] = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return removed
+    for root, dirs, files in os.walk(folder):
+        for name in [*dirs, *files]:
+            if dead_temporary(name):
+                path = Path(root) / name
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    path.unlink(missing_ok=True)
+                removed.append(path)
+        # Never descend into a temporary (a live run's is its own business); stop at the top
+        # unless asked.
+        dirs[:] = [d for d in dirs if recursive and not TEMP_NAME.match(d)]
+    return removed
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]:
@@ -26,7 +94,11 @@ def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]
     writers pick the format from it)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    folder = path.parent.resolve()
+    if folder not in _CLEANED:
+        remove_dead_temporaries(folder)
+        _CLEANED.add(folder)
+    fd, name = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=suffix, dir=path.parent)
     os.close(fd)
     tmp = Path(name)
     try:
@@ -77,18 +149,20 @@ def atomic_save_torch(path: str | os.PathLike, obj: Any) -> int:
 def atomic_directory(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path`` in one rename.
 
-    On an exception the temporary folder is deleted and ``path`` is untouched.
+    On an exception the temporary folder is deleted and ``path`` is untouched. Temporaries that
+    dead runs left beside ``path`` are removed first (module doc).
     """
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    remove_dead_temporaries(path.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".tmp", dir=path.parent))
     os.chmod(tmp, _DIR_MODE)
     try:
         yield tmp
         if path.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            trash = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".old", dir=path.parent))
             os.replace(path, trash / path.name)
             os.replace(tmp, path)
             shutil.rmtree(trash, ignore_errors=True)

@@ -185,7 +185,7 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
     rng = np.random.default_rng(config.seed)
     last = out / "last.pt"
     if resume and last.is_file():
-        payload = torch.load(last, map_location=device, weights_only=False)
+        payload = torch.load(last, map_location=device, weights_only=True)
         model.load_state_dict(payload["state_dict"])
         optimizer.load_state_dict(payload["optimizer"])
         state = TrainState(**payload["train_state"])
@@ -234,6 +234,7 @@ def train_segmentation(train_frames: list[TrainFrame], val_frames: list[TrainFra
             state.best_iou = iou if not math.isnan(iou) else state.best_iou
             _save_torch(out / "best.pt", checkpoint_payload(model, epoch=state.epoch, val_iou=entry["val_iou"],
                                                             train_config=to_dict(config), **(metadata or {})))
+        # Plain tensors, numbers, strings, lists and dicts only: torch.load(weights_only=True) reads it.
         _save_torch(last, {"state_dict": model.state_dict(), "optimizer": optimizer.state_dict(),
                            "train_state": to_dict(state), "rng_state": rng.bit_generator.state,
                            "config": to_dict(config)})

@@ -1,0 +1,99 @@
+"""Atomic writes (issue 26): temporaries name their owner; those of dead runs are removed, those
+of live runs and of other hosts are kept."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from radar4dgs.io import atomic
+from radar4dgs.io.atomic import (
+    HOST,
+    TEMP_NAME,
+    atomic_directory,
+    atomic_path,
+    atomic_save_torch,
+    dead_temporary,
+    pid_alive,
+    remove_dead_temporaries,
+)
+
+
+def dead_pid() -> int:
+    """A pid no process has: above the kernel's maximum."""
+    try:
+        return int(Path("/proc/sys/kernel/pid_max").read_text()) + 1
+    except OSError:
+        return 2 ** 22 + 1
+
+
+def temporaries(folder: Path, target: str) -> dict[str, Path]:
+    """A dead run's folder and file, a live run's (this process), and a dead pid on another host."""
+    made = {"dead": folder / f".{target}.{dead_pid()}@{HOST}.ab12cd_9.tmp",
+            "dead_file": folder / f".{target}.{dead_pid()}@{HOST}.zz99aa00.tmp.mp4",
+            "old": folder / f".{target}.{dead_pid()}@{HOST}.qq11ww22.old",
+            "live": folder / f".{target}.{os.getpid()}@{HOST}.k3j4h5g6.tmp",
+            "other_host": folder / f".{target}.{dead_pid()}@not-{HOST}.m1n2b3v4.tmp",
+            "legacy": folder / f".{target}.p0o9i8u7.tmp",  # no owner: never guessed at
+            "user": folder / f".{target}.notes"}
+    folder.mkdir(parents=True, exist_ok=True)
+    for key, path in made.items():
+        if key in ("dead_file", "user"):
+            path.write_bytes(b"half")
+        else:
+            path.mkdir()
+            (path / "frame.npy").write_bytes(b"half")
+    return made
+
+
+def test_temporary_names_carry_the_owner(tmp_path):
+    with atomic_path(tmp_path / "a.json") as tmp:
+        match = TEMP_NAME.match(tmp.name)
+        assert match and int(match["pid"]) == os.getpid() and match["host"] == HOST
+        assert match["target"] == "a.json"
+        tmp.write_text("{}")
+    with atomic_directory(tmp_path / "flow") as tmp:
+        assert TEMP_NAME.match(tmp.name)["target"] == "flow"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "flow"]
+
+
+def test_pid_alive():
+    assert pid_alive(os.getpid()) and not pid_alive(dead_pid())
+    assert not dead_temporary(f".x.{os.getpid()}@{HOST}.abcdefgh.tmp")
+    assert dead_temporary(f".x.{dead_pid()}@{HOST}.abcdefgh.tmp")
+
+
+def test_a_stage_removes_only_dead_runs_temporaries(tmp_path):
+    made = temporaries(tmp_path / "prepared", "flow")
+    with atomic_directory(tmp_path / "prepared" / "flow", overwrite=True) as out:
+        (out / "0.npy").write_bytes(b"x")
+    left = {key for key, path in made.items() if path.exists()}
+    assert left == {"live", "other_host", "legacy", "user"}
+    assert (tmp_path / "prepared" / "flow" / "0.npy").is_file()
+
+
+def test_a_checkpoint_write_removes_dead_temporaries(tmp_path, monkeypatch):
+    monkeypatch.setattr(atomic, "_CLEANED", set())
+    made = temporaries(tmp_path / "run" / "checkpoints", "last.pt")
+    atomic_save_torch(tmp_path / "run" / "checkpoints" / "last.pt", {"step": 3})
+    assert {key for key, path in made.items() if path.exists()} == {"live", "other_host", "legacy", "user"}
+
+
+def test_remove_dead_temporaries_recursive(tmp_path):
+    top = temporaries(tmp_path, "renders")
+    deep = temporaries(tmp_path / "renders" / "test", "000.png")
+    assert remove_dead_temporaries(tmp_path / "renders") == []  # no temporaries at its top
+    removed = remove_dead_temporaries(tmp_path, recursive=True)
+    expected = [made[key] for made in (top, deep) for key in ("dead", "dead_file", "old")]
+    assert sorted(removed) == sorted(expected)
+    assert all(path.exists() for made in (top, deep) for key, path in made.items()
+               if key not in ("dead", "dead_file", "old"))
+    assert remove_dead_temporaries(tmp_path / "missing") == []
+
+
+def test_a_failed_write_leaves_nothing(tmp_path):
+    with pytest.raises(RuntimeError), atomic_directory(tmp_path / "depth"):
+        raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
