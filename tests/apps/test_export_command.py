@@ -12,19 +12,8 @@ from radar4dgs.apps.ply import read_gaussians_ply
 from radar4dgs.cli import main
 from radar4dgs.evaluate.reconstruction import load_run
 from radar4dgs.model.motion_models import temporal_visibility
-from radar4dgs.model.scene_model import load_model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
-
-@pytest.fixture(scope="module")
-def trained(tiny_trained_run):
-    return tiny_trained_run / "run"
-
-
-@pytest.fixture(scope="module")
-def model(trained):
-    return load_model(trained / "model.pt")
 
 
 def numpy(tensor: torch.Tensor) -> np.ndarray:

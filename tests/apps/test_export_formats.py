@@ -15,24 +15,13 @@ from radar4dgs.apps.export_splats import Z_UP_TO_Y_UP, apply_up
 from radar4dgs.apps.ply import SH_C0, read_gaussians_ply
 from radar4dgs.cli import main
 from radar4dgs.io.scene import normalized_times, read_scene
-from radar4dgs.model.scene_model import load_model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def trained(tiny_trained_run):
-    return tiny_trained_run / "run"
-
-
-@pytest.fixture(scope="module")
 def scene(tiny_trained_run):
     return read_scene(tiny_trained_run / "scene")
-
-
-@pytest.fixture(scope="module")
-def model(trained):
-    return load_model(trained / "model.pt")
 
 
 def test_plyfile_reads_the_ply_as_written(trained, model, tmp_path):

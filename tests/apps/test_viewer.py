@@ -33,11 +33,6 @@ from radar4dgs.model.view import frame_view
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-@pytest.fixture(scope="module")
-def trained(tiny_trained_run):
-    return tiny_trained_run / "run"
-
-
 def test_camera_conversions_round_trip_and_match_opencv_axes():
     rng = np.random.default_rng(0)
     for _ in range(5):
