@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from radar4dgs.config import to_dict
-from radar4dgs.io.image_motion import dynamic_pixel_motion_map, image_motion_edges
+from radar4dgs.io.image_motion import image_motion_edges, project_motion
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.metrics.losses import flow_loss, radar_loss, velocity_loss
 from radar4dgs.model.field import DeformationField, FieldConfig
@@ -370,7 +370,13 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
         errors.append(error)
         zero.append(np.linalg.norm(motion, axis=1))
         held_out.append(np.full(len(error), i in test or (i + 1) in test))
-        image_motion.append(dynamic_pixel_motion_map(scene, i, inside_only=False)[rows, cols])
+        # The pixels' image motion from the gt arrays already loaded (NaN: behind the next camera).
+        keep, moved = project_motion(scene.camera.K, np.linalg.inv(scene.world_to_camera(i)),
+                                     scene.world_to_camera(i + 1), np.stack([cols, rows], axis=1).astype(np.float64),
+                                     depth[rows, cols], motion, None, with_keep=True)
+        pixel_motion = np.full(len(rows), np.nan)
+        pixel_motion[keep] = moved
+        image_motion.append(pixel_motion)
     if not errors:
         return {"epe": None, "epe_train_pairs": None, "epe_held_out_pairs": None, "zero_motion_epe": None,
                 "roundtrip_max": None, "points": 0, "pairs": 0, "epe_by_image_motion": []}
