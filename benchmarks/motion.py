@@ -6,14 +6,15 @@ objects' velocity term (both_velocity).
                                 [--traffic calm|realistic|rush] [--fps 10]
 
 Prints a table and writes benchmarks/results/motion.json (rewritten after every seed, so an
-interrupted run keeps the seeds it finished; motion-<traffic>.json for --traffic realistic or rush).
+interrupted run keeps the seeds it finished; motion-<traffic>[-<fps>hz].json for --traffic realistic or rush).
 Every seed's entry holds the image motion of its dynamic pixels (p50/p90/p99 px per frame, from
 gt/flow) beside its errors, and the radar objects' velocity error (objects with >= 3 returns).
 
 Seeds, fixed before any tuning (issue 21): calm traffic 1-5 (6-8 held out); realistic traffic at
 10 Hz: 101-105 to tune on, 106-110 only to report; realistic traffic at 5 Hz: 111-112, report only;
 rush traffic at 10 Hz (fixed before any scene of that profile was made): 201-203 to tune on,
-204-208 only to report. The fit uses only prepared data: the radar front
+204-208 only to report; rush traffic at 5 Hz (the hard set: twice the per-frame motion of 10 Hz;
+fixed before any scene of it was made): 209-213, report only. The fit uses only prepared data: the radar front
 end, radar-scaled depth and the segmentation network's masks (`radar4dgs prepare`). With --oracle,
 depth and dynamic masks come from the scene's gt/ instead (an upper bound; written to
 motion-oracle.json unless --out is given).
@@ -136,7 +137,8 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     args = parser.parse_args()
     if args.out is None:
-        name = "motion" + ("" if args.traffic == "calm" else f"-{args.traffic}") + ("-oracle" if args.oracle else "")
+        name = ("motion" + ("" if args.traffic == "calm" else f"-{args.traffic}")
+                + ("" if args.fps is None else f"-{args.fps:g}hz") + ("-oracle" if args.oracle else ""))
         args.out = RESULTS.with_name(name + ".json")
 
     report: dict = {"command": "python benchmarks/motion.py " + " ".join(
