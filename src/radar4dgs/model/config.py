@@ -293,6 +293,11 @@ class TrainConfig:
     # Torch device ("cpu", "cuda", ...) and intra-op threads (0 = torch's default).
     device: str = "cpu"
     threads: int = 0
+    # Training frames whose targets (image, depth, sky and dynamic masks, ray directions: about 30
+    # bytes a pixel, on the device) stay in memory, the most recently used; the others are read
+    # from disk when drawn (a few ms a frame at 320x180). 0 keeps every frame, so memory grows
+    # with the drive. Changes no result (a runtime field, as threads).
+    frame_cache: int = 64
     # Initialisation from the prepared depth.
     init: GaussianInitConfig = dataclasses.field(default_factory=GaussianInitConfig)
     # The invertible deformation field.
@@ -330,7 +335,9 @@ class TrainConfig:
                   "optim": {"iterations": 1800, "stage2_start": 0.25, "stage3_start": 0.4},
                   "coarse_scale": 0.5, "coarse_until": 0.35,
                   "densify": {"max_gaussians": 100_000}},
+        # 1920x1080 frames are ~60 MB each on the device: 16 of them, not 64.
         "paper": {"init": dict(GaussianInitConfig.PRESETS["paper"]), "field": dict(FieldConfig.PRESETS["paper"]),
+                  "frame_cache": 16,
                   "optim": {"iterations": 30_000}, "checkpoint_every": 5000, "log_every": 100,
                   "densify": {"every": 100, "reset_every": 3000, "max_gaussians": 3_000_000},
                   "losses": {"motion_batch": 8192, "radar_points_per_frame": 10_000},
@@ -346,6 +353,8 @@ class TrainConfig:
                              f"{o.stage2_start}, {o.stage3_start}")
         if self.dynamic_lifespan < 0:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
+        if self.frame_cache < 0:
+            raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.dynamic_lifespan_reference_px < 0:
             raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:

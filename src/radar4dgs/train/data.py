@@ -1,15 +1,20 @@
-"""What the trainer supervises with, loaded once from the scene and its prepared folder.
+"""What the trainer supervises with, from the scene and its prepared folder.
 
 Per training frame: the image, the radar-scaled depth, the sky mask and the predicted dynamic mask
-(all at the training resolution), the camera and its pixel ray directions. For the field: the
+(all at the training resolution), the camera and its pixel ray directions, read from disk when the
+frame is drawn and kept in a bounded cache (:class:`FrameTargetCache`), so that memory does not grow
+with the length of the drive; the dynamic masks are read when asked for (:class:`FrameMasks`). For
+the field (loaded once: a few samples per dynamic pixel, not per pixel): the
 lifted pseudo scene-flow pairs of ``prepared/flow`` and the radar-associated dynamic points
 (the standalone motion fit's own samplers, so the two fits see the same data).
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -71,24 +76,78 @@ def baseline_mask_dir(scene, prepared: Path, progress: bool = False) -> Path:
     return folder
 
 
-def dynamic_masks(scene, prepared: Path, source: str, indices, progress: bool = False) -> dict[int, np.ndarray]:
+class FrameMasks(Mapping[int, np.ndarray]):
+    """Frame index -> its (H, W) bool dynamic mask, read by ``read(index)`` each time it is asked
+    for: the masks of a long drive are never all in memory at once."""
+
+    def __init__(self, read: Callable[[int], np.ndarray], indices: Iterable[int]):
+        self._read, self._indices = read, list(indices)
+        self._known = set(self._indices)
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        if index not in self._known:
+            raise KeyError(index)
+        return self._read(index)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._indices)
+
+    def __len__(self) -> int:
+        return len(self._indices)
+
+
+def dynamic_masks(scene, prepared: Path, source: str, indices, progress: bool = False) -> FrameMasks:
     """The (H, W) bool dynamic mask of each frame in ``indices`` from ``source``: "predicted"
-    (``prepared/masks``), "baseline" (:func:`baseline_mask_dir`) or "gt" (``gt/dynamic_mask``)."""
+    (``prepared/masks``), "baseline" (:func:`baseline_mask_dir`) or "gt" (``gt/dynamic_mask``),
+    read when asked for; a missing mask file is named here, before training starts."""
     prepared = Path(prepared)
     shape = (scene.camera.height, scene.camera.width)
     if source == "gt":
         if not scene.has("gt/dynamic_mask"):
             raise FileNotFoundError(f"{scene.root / 'gt' / 'dynamic_mask'}: the scene has no ground-truth "
                                     f"masks for mask_source gt")
-        return {i: scene.load_optional("gt/dynamic_mask", i).astype(bool) for i in indices}
+        return FrameMasks(lambda i: scene.load_optional("gt/dynamic_mask", i).astype(bool), indices)
     if source == "baseline":
         folder = baseline_mask_dir(scene, prepared, progress)
     elif source == "predicted":
         folder = prepared / "masks"
     else:
         raise ValueError(f"unknown mask source {source!r}; choose predicted, baseline or gt")
-    return {i: read_mask_png(require_prepared(folder / f"{scene.frames[i].name}.png", "dynamic mask"), shape)
-            for i in indices}
+    for i in indices:
+        require_prepared(folder / f"{scene.frames[i].name}.png", "dynamic mask")
+    return FrameMasks(lambda i: read_mask_png(folder / f"{scene.frames[i].name}.png", shape), indices)
+
+
+class FrameTargetCache(Sequence[FrameTargets]):
+    """The training frames' :class:`FrameTargets`: item ``k`` is loaded by ``load(k)`` when asked
+    for and kept among the ``size`` most recently used ones (0 keeps every frame), so that a long
+    drive's images, depth and masks are not all held in memory. ``loads`` counts the loads."""
+
+    def __init__(self, load: Callable[[int], FrameTargets], count: int, size: int):
+        if size < 0:
+            raise ValueError(f"frame_cache must be >= 0, got {size}")
+        self._load, self._count, self.size = load, int(count), int(size)
+        self._cache: OrderedDict[int, FrameTargets] = OrderedDict()
+        self.loads = 0
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __getitem__(self, k):  # type: ignore[override]
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._count))]
+        if not -self._count <= k < self._count:
+            raise IndexError(f"frame {k} of {self._count}")
+        k = int(k) % self._count
+        if k in self._cache:
+            self._cache.move_to_end(k)
+            return self._cache[k]
+        target = self._load(k)
+        self.loads += 1
+        self._cache[k] = target
+        if self.size and len(self._cache) > self.size:
+            self._cache.popitem(last=False)
+        return target
 
 
 def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: np.ndarray,

@@ -8,7 +8,7 @@ from radar4dgs.config import config_difference, from_dict, to_dict
 from radar4dgs.model.config import GaussianInitConfig, TrainConfig
 
 # Where a run computes, not what it computes: a run may resume with other values.
-RUNTIME_FIELDS = ("threads", "device")
+RUNTIME_FIELDS = ("threads", "device", "frame_cache")
 
 
 def with_legacy_values(saved: dict) -> dict:

@@ -45,7 +45,7 @@ from radar4dgs.model.run import (
 from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
-from radar4dgs.train.data import FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
+from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
 from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.model_init import (
@@ -153,9 +153,15 @@ class Trainer:
             self._points = backproject_frames(self.scene, self.prepared, self.config.init, masks=self.masks)
         return self._points
 
-    def _targets(self, scale: float) -> list[FrameTargets]:
-        return [load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype,
-                                   dynamic=self.masks[i]) for i in self.train_indices]
+    def _targets(self, scale: float) -> FrameTargetCache:
+        """The training frames' targets at ``scale``, read from disk when a frame is drawn and kept
+        among the ``config.frame_cache`` most recently used (memory does not grow with the drive)."""
+        def load(k: int) -> FrameTargets:
+            i = self.train_indices[k]
+            return load_frame_targets(self.scene, self.prepared, i, scale, self.times, self.device, self.dtype,
+                                      dynamic=self.masks[i])
+
+        return FrameTargetCache(load, len(self.train_indices), self.config.frame_cache)
 
     def _fresh_state(self) -> RunState:
         config, device, dtype = self.config, self.device, self.dtype
@@ -168,8 +174,9 @@ class Trainer:
         if method == "pvg":
             static = with_lifespans(static, self.times[points["frame"][~dyn]], config.baselines.initial_lifespan,
                                     velocity=torch.zeros(len(static), 3))
-        images = [(t.image.cpu().numpy() * 255).astype(np.uint8) for t in self.targets]
-        sky = SkyEnvironment.from_sky_pixels(images, [t.sky.cpu().numpy() for t in self.targets],
+        # One frame at a time (the cache returns the frame the images read for its sky mask).
+        images = ((t.image.cpu().numpy() * 255).astype(np.uint8) for t in self.targets)
+        sky = SkyEnvironment.from_sky_pixels(images, (t.sky.cpu().numpy() for t in self.targets),
                                              height=config.sky_height, width=config.sky_width,
                                              device=device, dtype=dtype)
         deformation, dynamic, offsets = None, None, None
