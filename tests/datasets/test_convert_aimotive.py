@@ -128,3 +128,27 @@ def test_real_sample(tmp_path):
     # Doppler of points in moving boxes matches d . v_rel (the azimuth-sign check), see module doc.
     image = scene.load_image(0)
     assert image.shape == (176, 320, 3)
+
+
+def test_calibration_is_cross_checked_and_recorded(tmp_path):
+    """extrinsic_matrices.json must agree with calibration.json; source.calibration says what was
+    used, the accuracies the file states and what was left (issue 27)."""
+    src = _fake_sequence(tmp_path / "seq", frames=4)
+    calib_dir = src / "sensor" / "calibration"
+    calib = json.loads((calib_dir / "calibration.json").read_text())
+    calib[CAMERA]["custom_vars"] = {"misalign_ref_angle_error": 0.5}
+    calib[CAMERA]["reprojection_error"] = -1
+    calib["Imu0"] = {"sensor_type": "imu_ins"}
+    (calib_dir / "calibration.json").write_text(json.dumps(calib))
+    matrices = {f"RT_body_from_{s}": calib[s]["RT_body_from_sensor"] for s in (CAMERA, RADAR)}
+    (calib_dir / "extrinsic_matrices.json").write_text(json.dumps(matrices))
+    scene = read_scene(convert_aimotive(src, tmp_path / "scene", progress=False))
+    record = scene.source["calibration"]
+    assert record["extrinsics_cross_checked"] == [CAMERA, RADAR]
+    assert record["camera"]["misalign_ref_angle_error_deg"] == 0.5 and record["camera"]["reprojection_error_px"] is None
+    assert record["camera"]["focal_length_px"] == [40.0, 40.0] and "Imu0" in record["not_used"]
+    assert scene.source["poses_from_odometry"] is True
+    matrices[f"RT_body_from_{RADAR}"][0][3] += 0.01
+    (calib_dir / "extrinsic_matrices.json").write_text(json.dumps(matrices))
+    with pytest.raises(SceneError, match="extrinsic_matrices.json"):
+        convert_aimotive(src, tmp_path / "scene2", progress=False)

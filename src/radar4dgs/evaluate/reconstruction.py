@@ -44,11 +44,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from radar4dgs.evaluate.alignment import aligned_metrics, learned_corrections, score_aligned
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
 from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
 from radar4dgs.metrics.image import LpipsScorer, lpips_convention, lpips_or_none, psnr, ssim, summarize_frames
-from radar4dgs.model.run import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, Run, load_run
+from radar4dgs.model.run import CONFIG_FILE, HISTORY_FILE, LOSS_TERMS, POSES_FILE, Run, load_run
 from radar4dgs.model.run_log import TB_DIR, TensorBoard
 from radar4dgs.model.view import View, frame_view
 
@@ -254,6 +255,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
     times = normalized_times(scene)
     source = mask_source(run)
     per_frame: dict[str, list[dict]] = {"recon": [], "nvs": []}
+    # Runs that refined their poses: the test views also aligned (evaluate.alignment).
+    learned, aligned = learned_corrections(run), {}
     frames_video, panels = [], []
     tb_images: dict[str, np.ndarray] | None = {} if (run.root / TB_DIR).is_dir() else None
     indices = range(len(scene))
@@ -269,7 +272,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         for index in indices:
             name = scene.frames[index].name
             split = "nvs" if index in test else "recon"
-            out = render_view(run, frame_view(scene, index, 1.0, times))
+            view = frame_view(scene, index, 1.0, times)
+            out = render_view(run, view)
             device_ = out["rgb"].device
             gt = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0, device=device_)
             mask = dynamic_mask(run, index, source)
@@ -279,6 +283,9 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
             if found is not None:
                 entry["trained_mask_hits"] = found[0]
             per_frame[split].append(entry)
+            if learned is not None and split == "nvs":
+                score_aligned(run, view, gt, times[learned[0]], learned[1],
+                              lambda rgb, gt=gt, mask=mask: score_frame(rgb, gt, mask, scorers), aligned, name)
             render_u8, gt_u8 = to_uint8(rgb), scene.load_image(index)
             depth_u8 = depth_to_rgb(np.where(out["alpha"].cpu().numpy() > 0.05, out["depth"].cpu().numpy(), np.nan),
                                     near=DEPTH_NEAR, far=DEPTH_FAR)
@@ -307,6 +314,7 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         "run": run_record(run),
         "per_frame": per_frame,
     }
+    metrics.update(aligned_metrics(run, aligned) if learned is not None else {})
     if video and frames_video:
         from radar4dgs.evaluate.video import write_video
 
@@ -350,7 +358,8 @@ def write_run_report(run: Run, metrics: dict[str, Any], per_frame: dict[str, lis
                  run_info=run_info, caveats=metrics["psnr_dyn_caveats"], links=links,
                  video=VIDEO_FILE if has_video else None,
                  config=_read_json(run.root / CONFIG_FILE).get("config"),
-                 flagged=[split for split, flag in metrics["psnr_dyn_flagged"].items() if flag])
+                 flagged=[split for split, flag in metrics["psnr_dyn_flagged"].items() if flag],
+                 poses=_read_json(run.root / POSES_FILE) or None)
 
 
 def log_tensorboard(run: Run, metrics: dict[str, Any], images: dict[str, np.ndarray]) -> None:

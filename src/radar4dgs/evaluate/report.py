@@ -298,6 +298,36 @@ def _history_section(history: Sequence[Mapping[str, Any]]) -> str:
             f"<img class=\"plot\" alt=\"training curves\" src=\"{_figure_uri(fig)}\">\n")
 
 
+def _poses_section(poses: Mapping[str, Any] | None) -> str:
+    """The learned corrections per training frame (``RUN/poses.json``): translation (m) and
+    rotation (deg) per camera axis, and the exposure gains where the run learned them."""
+    frames = (poses or {}).get("frames") or []
+    if not frames:
+        return ""
+    index = [f["index"] for f in frames]
+    series = []
+    if any("correction" in f for f in frames):
+        t = np.array([f["correction"]["translation_m"] for f in frames])
+        r = np.degrees(np.array([f["correction"]["rotation_rad"] for f in frames]))
+        series += [("translation (m)", t, "xyz"), ("rotation (deg)", r, "xyz")]
+    if any("appearance" in f for f in frames):
+        gains = np.array([1.0 + np.diag(np.array(f["appearance"]["matrix"])) for f in frames])
+        series.append(("exposure gain", gains, "rgb"))
+    fig = _new_figure(4.0 * len(series), 3.2)
+    for ax, (label, values, axes) in zip(fig.subplots(1, len(series), squeeze=False)[0], series, strict=True):
+        for j, name in enumerate(axes):
+            ax.plot(index, values[:, j], marker=".", linewidth=1, label=name)
+        ax.set_xlabel("frame")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small")
+    summary = (poses or {}).get("summary") or {}
+    note = ", ".join(f"{k.replace('_', ' ')} {_fmt(v)}" for k, v in summary.items())
+    return ("<h2>Pose and exposure refinement</h2>\n"
+            "<p class=\"meta\">Learned per training frame, in camera axes (x right, y down, z forward); "
+            f"{_esc(note)}</p>\n<img class=\"plot\" alt=\"pose corrections\" src=\"{_figure_uri(fig)}\">\n")
+
+
 def _panels_section(panels: Sequence[Mapping[str, Any]], max_image_width: int | None) -> str:
     if not panels:
         return ""
@@ -326,11 +356,11 @@ def render_report(*, title: str, metrics: Mapping[str, Any],
                   max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
                   caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
                   video: str | None = None, config: Mapping[str, Any] | None = None,
-                  flagged: Sequence[str] = ()) -> str:
+                  flagged: Sequence[str] = (), poses: Mapping[str, Any] | None = None) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     body = (_run_section(run_info or {}, links or {}, video, config) + _metrics_section(metrics, flagged)
             + _caveats_section(caveats) + _per_frame_section(per_frame) + _history_section(history)
-            + _panels_section(panels, max_image_width))
+            + _poses_section(poses) + _panels_section(panels, max_image_width))
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
             f"<h1>{_esc(title)}</h1>\n{body}</body>\n</html>\n")
@@ -342,7 +372,7 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
                  max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
                  caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
                  video: str | None = None, config: Mapping[str, Any] | None = None,
-                 flagged: Sequence[str] = ()) -> Path:
+                 flagged: Sequence[str] = (), poses: Mapping[str, Any] | None = None) -> Path:
     """Write one self-contained HTML report to ``path`` (atomically); returns the path.
 
     ``metrics``: ``{"recon": {...}, "nvs": {...}, "mask_source": str, "lpips_available": bool}``,
@@ -359,9 +389,11 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
     masks); ``links``: label -> name of a file beside the report (``config.json``); ``video``: the
     name of a video beside the report, played in the page; ``config``: the resolved config, shown
     as JSON in a collapsed block; ``flagged``: the splits whose PSNR* is flagged by a caveat, marked
-    in the metrics table.
+    in the metrics table; ``poses``: ``RUN/poses.json`` of a run that refined poses or exposure,
+    plotted per frame.
     """
     text = render_report(title=title, metrics=metrics, per_frame=per_frame, history=history,
                          panels=panels, max_image_width=max_image_width, run_info=run_info,
-                         caveats=caveats, links=links, video=video, config=config, flagged=flagged)
+                         caveats=caveats, links=links, video=video, config=config, flagged=flagged,
+                         poses=poses)
     return atomic_write_text(path, text)

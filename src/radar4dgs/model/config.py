@@ -195,6 +195,59 @@ class LossConfig:
     radar_returns_as_points: bool = False
 
 
+# "auto": on for scenes whose poses come from odometry (scene.json's source says
+# "poses_from_odometry" or "poses_from_radar": radar integration, `convert aimotive`), off for the
+# rest (exact simulator poses); "on" / "off" force it.
+RefineMode = Literal["auto", "on", "off"]
+
+
+@dataclass
+class PoseRefineConfig:
+    """Pose refinement (a learned SE(3) correction per training frame) and exposure compensation
+    (a learned per-frame affine colour transform), issue 27; radar4dgs.model.pose_refine and
+    radar4dgs.model.appearance."""
+
+    # Learn a camera pose correction per training frame (see RefineMode).
+    refine: RefineMode = "auto"
+    # Adam rates of the corrections' translation (m) and rotation (rad) at the end of the warm-up,
+    # decayed log-linearly to lr_final_ratio of themselves at the end of the run.
+    translation_lr: float = 2e-3
+    rotation_lr: float = 2e-4
+    lr_final_ratio: float = 0.1
+    # Fraction of the run before the poses learn: the scene must look like something first.
+    warmup: float = 0.2
+    # Weight of the mean squared difference of consecutive training frames' corrections (m^2 and
+    # rad^2): odometry drifts smoothly, independent noise does not.
+    smooth_weight: float = 0.01
+    # Weight of the mean squared correction (the gauge: shifting every camera and the scene
+    # together changes no training image).
+    prior_weight: float = 0.01
+    # Learn a per-frame affine colour transform (exposure, white balance) of the render before the
+    # image loss: "auto" = on for recorded scenes (source dataset other than "synthetic").
+    appearance: RefineMode = "auto"
+    appearance_lr: float = 1e-3
+    # Weight of the transform's mean squared deviation from the identity.
+    appearance_weight: float = 0.01
+    # Evaluation of a refined run: Adam steps and rate (translation m, rotation rate / 10) of the
+    # test-time pose optimisation of each test view against its image, the scene frozen.
+    test_steps: int = 40
+    test_lr: float = 5e-3
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        "tiny": {"test_steps": 20},
+        "small": {},
+        "paper": {"warmup": 0.1, "test_steps": 100, "test_lr": 2e-3},
+    }
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.warmup < 1.0:
+            raise ValueError(f"poses.warmup must lie in [0, 1), got {self.warmup}")
+        for name in ("translation_lr", "rotation_lr", "appearance_lr", "smooth_weight", "prior_weight",
+                     "appearance_weight", "test_lr", "test_steps"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"poses.{name} must be >= 0, got {getattr(self, name)}")
+
+
 @dataclass
 class OptimConfig:
     """Iterations, stage boundaries, learning rates and dropout."""
@@ -308,6 +361,8 @@ class TrainConfig:
     raster: RasterConfig = dataclasses.field(default_factory=RasterConfig)
     # The baselines' motion models (deformable, pvg, bspline), and the life-span learning rates.
     baselines: BaselineConfig = dataclasses.field(default_factory=BaselineConfig)
+    # Camera pose refinement and exposure compensation (on by default for odometry poses).
+    poses: PoseRefineConfig = dataclasses.field(default_factory=PoseRefineConfig)
     # Sky map size (texels, equirectangular). A texel should be about a pixel: 2048 texels round
     # the horizon are 0.18 deg each, a pixel of the 320-wide, 70-deg synthetic camera 0.22. The
     # sky is a tenth of a driving image; a 128-texel map (2.8 deg a texel) blurred its clouds and
@@ -323,7 +378,7 @@ class TrainConfig:
                  "optim": {"iterations": 200}, "checkpoint_every": 100, "log_every": 10,
                  "densify": {"every": 50, "max_gaussians": 12_000},
                  "losses": {"motion_batch": 512, "radar_points_per_frame": 500},
-                 "sky_height": 256, "sky_width": 512},
+                 "sky_height": 256, "sky_width": 512, "poses": dict(PoseRefineConfig.PRESETS["tiny"])},
         # 320x180 on 2 CPU cores in about 15 minutes (the demo's budget is 20 in all): fewer
         # iterations than a GPU run, the first third at half resolution. Stage 2 starts at a
         # quarter of the run, not half: 1 800 iterations leave the dynamic Gaussians too few
@@ -334,14 +389,14 @@ class TrainConfig:
                   "field": dict(FieldConfig.PRESETS["small"]),
                   "optim": {"iterations": 1800, "stage2_start": 0.25, "stage3_start": 0.4},
                   "coarse_scale": 0.5, "coarse_until": 0.35,
-                  "densify": {"max_gaussians": 100_000}},
+                  "densify": {"max_gaussians": 100_000}, "poses": dict(PoseRefineConfig.PRESETS["small"])},
         # 1920x1080 frames are ~60 MB each on the device: 16 of them, not 64.
         "paper": {"init": dict(GaussianInitConfig.PRESETS["paper"]), "field": dict(FieldConfig.PRESETS["paper"]),
                   "frame_cache": 16,
                   "optim": {"iterations": 30_000}, "checkpoint_every": 5000, "log_every": 100,
                   "densify": {"every": 100, "reset_every": 3000, "max_gaussians": 3_000_000},
                   "losses": {"motion_batch": 8192, "radar_points_per_frame": 10_000},
-                  "sky_height": 2048, "sky_width": 4096},
+                  "sky_height": 2048, "sky_width": 4096, "poses": dict(PoseRefineConfig.PRESETS["paper"])},
     }
 
     def __post_init__(self) -> None:

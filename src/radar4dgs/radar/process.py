@@ -26,6 +26,7 @@ from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
 from radar4dgs.radar.objects import OBJECTS_FILE, detect_objects, track_objects
 from radar4dgs.radar.poses import expected_radar_velocity, fill_gaps
+from radar4dgs.radar.sync import scene_time_offset
 
 NPZ_KEYS = ("ego_velocity", "covariance", "ok", "inliers", "dynamic", "v_r_comp")
 
@@ -122,6 +123,8 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     summary: dict[str, Any] = {"frames": frames, "num_ok": int(sum(f.ok for f in fits)),
                                "num_frames": len(fits), "config": to_dict(config)}
     summary["disagreement"] = compare_with_scene(scene, velocities)
+    # Camera-radar clock offset: Doppler speeds against the speed the camera-time poses imply.
+    summary["time_sync"] = scene_time_offset(scene, stamps, velocities)
     for i, entry in enumerate(frames):
         errs = summary["disagreement"].get("per_frame")
         entry["disagreement"] = None if errs is None else errs[i]

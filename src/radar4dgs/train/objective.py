@@ -1,7 +1,8 @@
 """The training loss of one iteration: its named terms, their weights and their weighted sum.
 
 ``(1 - l_r) L1 + l_r (1 - SSIM) + l_d L_invdepth + l_obj BCE(dyn, mask) [stage 3] + l_sky BCE(alpha,
-not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module docstring has the stages).
+not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module docstring has the stages),
+plus, where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``.
 """
 
 from __future__ import annotations
@@ -70,10 +71,23 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     c = config.losses
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
-            "velocity": c.velocity_weight}
+            "velocity": c.velocity_weight, "pose_smooth": config.poses.smooth_weight,
+            "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight}
 
 
 def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:
     """The weighted sum of the named terms (absent terms count 0)."""
     weights = loss_weights(config)
     return sum(weights[name] * value for name, value in losses.items())
+
+
+def refinement_losses(poses: Any, appearance: Any) -> dict[str, Tensor]:
+    """The regularisers of the pose corrections (``pose_smooth``, ``pose_prior``) and of the colour
+    transforms (``appearance``: deviation from the identity), for the parts present (None = absent)."""
+    losses = {}
+    if poses is not None:
+        losses["pose_smooth"] = poses.smoothness()
+        losses["pose_prior"] = poses.prior()
+    if appearance is not None:
+        losses["appearance"] = appearance.regularizer()
+    return losses

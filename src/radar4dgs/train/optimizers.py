@@ -9,8 +9,10 @@ from typing import Any
 
 import torch
 
+from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet
+from radar4dgs.model.pose_refine import PoseCorrections
 from radar4dgs.model.scene_model import SceneModel
 
 
@@ -78,3 +80,36 @@ def set_learning_rates(optimizers: dict[str, torch.optim.Optimizer], config: Tra
         if name in optimizers:
             for group in optimizers[name].param_groups:
                 group["lr"] = decayed_network_lr(config, start, progress)
+
+
+def make_refine_optimizers(poses: PoseCorrections | None, appearance: FrameAppearance | None,
+                           config: TrainConfig) -> dict[str, torch.optim.Optimizer]:
+    """Adam for the pose corrections ("poses": translation and rotation groups) and the per-frame
+    colour transforms ("appearance"), for those present."""
+    c = config.poses
+    optimizers: dict[str, torch.optim.Optimizer] = {}
+    if poses is not None:
+        optimizers["poses"] = adam(poses.param_groups(c.translation_lr, c.rotation_lr))
+    if appearance is not None:
+        optimizers["appearance"] = adam(appearance.param_groups(c.appearance_lr))
+    return optimizers
+
+
+def pose_lr_scale(config: TrainConfig, step: int) -> float:
+    """Factor on the pose rates at iteration ``step``: 0 during the warm-up, then a log-linear decay
+    from 1 to ``poses.lr_final_ratio`` at the end of the run."""
+    total = max(config.optim.iterations - 1, 1)
+    start = config.poses.warmup * total
+    if step < start:
+        return 0.0
+    return exponential_lr(1.0, max(config.poses.lr_final_ratio, 1e-12), (step - start) / max(total - start, 1))
+
+
+def set_refine_learning_rates(optimizers: dict[str, torch.optim.Optimizer], config: TrainConfig, step: int) -> None:
+    """The pose rates of iteration ``step`` (:func:`pose_lr_scale`); the appearance rate is constant."""
+    if "poses" not in optimizers:
+        return
+    scale = pose_lr_scale(config, step)
+    for group in optimizers["poses"].param_groups:
+        base = config.poses.translation_lr if group["name"] == "poses.translation" else config.poses.rotation_lr
+        group["lr"] = base * scale

@@ -17,6 +17,7 @@ Adam moments, densification statistics) continues exactly as the unbroken run wo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -31,8 +32,10 @@ from radar4dgs.config import read_config_dict, save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.io.scene import normalized_times, read_scene
+from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames
+from radar4dgs.model.pose_refine import PoseCorrections, corrected_directions, refinement_switches
 from radar4dgs.model.run import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
@@ -41,6 +44,7 @@ from radar4dgs.model.run import (
     LOSS_TERMS,
     MODEL_FILE,
     RUN_FILE,
+    write_refined_poses,
 )
 from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
@@ -58,8 +62,15 @@ from radar4dgs.train.model_init import (
     speed_scaled_lifespans,
     with_lifespans,
 )
-from radar4dgs.train.objective import image_losses, motion_losses, total_loss
-from radar4dgs.train.optimizers import make_optimizer, make_optimizers, set_learning_rates
+from radar4dgs.train.objective import image_losses, motion_losses, refinement_losses, total_loss
+from radar4dgs.train.optimizers import (
+    make_optimizer,
+    make_optimizers,
+    make_refine_optimizers,
+    pose_lr_scale,
+    set_learning_rates,
+    set_refine_learning_rates,
+)
 from radar4dgs.train.run_config import run_config_difference, same_run_config
 
 # The public entry point of training; LOSS_TERMS and the run-config checks are re-exported for
@@ -111,6 +122,9 @@ class RunState:
     optimizers: dict[str, torch.optim.Optimizer]
     stats: dict[str, GradientStats]
     history: list[dict] = field(default_factory=list)
+    # Pose corrections and per-frame colour transforms of the training frames (None = not refined).
+    poses: PoseCorrections | None = None
+    appearance: FrameAppearance | None = None
 
 
 class Trainer:
@@ -194,7 +208,22 @@ class Trainer:
             stats["dynamic"] = GradientStats(len(dynamic), device)
         model = SceneModel(static, sky, deformation, dynamic, offsets, config.baselines)
         optimizers = make_optimizers(model, config, self.extent)
-        return RunState(0, model, optimizers, stats)
+        return self._with_refinement(RunState(0, model, optimizers, stats))
+
+    def _with_refinement(self, state: RunState, saved: dict[str, Any] | None = None) -> RunState:
+        """``state`` with the pose corrections and colour transforms this run learns (as
+        ``config.poses`` and the scene's ``source`` say), fresh or from checkpoint ``saved``."""
+        poses_on, appearance_on = refinement_switches(self.config.poses.refine, self.config.poses.appearance,
+                                                      self.scene.source)
+        n, saved = len(self.train_indices), saved or {}
+        if poses_on:
+            state.poses = PoseCorrections.from_state(saved["poses"], self.device, self.dtype) \
+                if saved.get("poses") is not None else PoseCorrections(n, self.device, self.dtype)
+        if appearance_on:
+            state.appearance = FrameAppearance.from_state(saved["appearance"], self.device, self.dtype) \
+                if saved.get("appearance") is not None else FrameAppearance(n, self.device, self.dtype)
+        state.optimizers.update(make_refine_optimizers(state.poses, state.appearance, self.config))
+        return state
 
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
@@ -222,7 +251,12 @@ class Trainer:
         return {"step": state.step, "model": state.model.payload(),
                 "optimizers": {k: v.state_dict() for k, v in state.optimizers.items()},
                 "stats": {k: v.state_dict() for k, v in state.stats.items()},
-                "history": state.history, "config": to_dict(self.config)}
+                "history": state.history, "config": to_dict(self.config), **self._refinement_payload(state)}
+
+    @staticmethod
+    def _refinement_payload(state: RunState) -> dict[str, Any]:
+        return {"poses": None if state.poses is None else state.poses.state(),
+                "appearance": None if state.appearance is None else state.appearance.state()}
 
     def save_checkpoint(self, state: RunState) -> Path:
         directory = self.out / CHECKPOINT_DIR
@@ -239,6 +273,7 @@ class Trainer:
         model = SceneModel.from_payload(saved["model"], self.device, self.dtype)
         state = RunState(int(saved["step"]), model, {}, {}, list(saved.get("history", [])))
         state.optimizers.update(make_optimizers(model, self.config, self.extent))
+        self._with_refinement(state, saved)
         for name, optimizer in state.optimizers.items():
             optimizer.load_state_dict(saved["optimizers"][name])
         for name, stats in saved["stats"].items():
@@ -314,7 +349,11 @@ class Trainer:
 
     def finish(self, state: RunState, seconds: float) -> None:
         atomic_save_torch(self.out / MODEL_FILE, {"model": state.model.payload(), "step": state.step,
-                                                  "config": to_dict(self.config)})
+                                                  "config": to_dict(self.config), **self._refinement_payload(state)})
+        if state.poses is not None or state.appearance is not None:
+            write_refined_poses(self.out, self.scene, self.train_indices,
+                                None if state.poses is None else state.poses.xi.detach().cpu().numpy(),
+                                None if state.appearance is None else state.appearance.state())
         atomic_write_json(self.out / HISTORY_FILE, history_payload(state.history, *self._counts(state), seconds))
 
     @staticmethod
@@ -328,9 +367,11 @@ class Trainer:
         if config.method == "ours" and stage >= 2 and state.model.dynamic is None:
             self._start_dynamic(state)
         set_learning_rates(state.optimizers, config, self.extent, step)
+        set_refine_learning_rates(state.optimizers, config, step)
         n = len(self.targets)
         targets = self.coarse_targets if step < config.coarse_until * config.optim.iterations else self.targets
-        target = targets[int(frame_order(config.seed, step // n, n)[step % n])]
+        row = int(frame_order(config.seed, step // n, n)[step % n])
+        target = targets[row]
         generator = step_generator(config.seed, step)
         model = state.model
         ours = config.method == "ours"
@@ -341,8 +382,11 @@ class Trainer:
                               generator=generator) >= config.optim.dropout
             keep = keep.to(self.device)
             scale = 1.0 / (1.0 - config.optim.dropout)
-        render = model.render(target.view, config.raster, target.directions, keep, scale,
+        view, directions = self._camera(state, row, target)
+        render = model.render(view, config.raster, directions, keep, scale,
                               include_dynamic=with_dynamic, detach_static=ours and stage == 2)
+        if state.appearance is not None:
+            render = {**render, "rgb": state.appearance(render["rgb"], row)}
         means2d = render["meta"]["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
@@ -350,13 +394,14 @@ class Trainer:
         if ours and self.motion is not None:
             losses.update(motion_losses(model.field, self.motion, config.losses.motion_batch, generator,
                                         self.device, self.dtype))
+        losses.update(refinement_losses(state.poses, state.appearance))
         check_finite(losses, step)
         loss = total_loss(losses, config)
         for optimizer in state.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        trainable = ["sky", "field", "offsets"] + (["static"] if not (ours and stage == 2) else []) + \
-            (["dynamic"] if with_dynamic else [])
+        trainable = ["sky", "field", "offsets", "appearance"] + (["static"] if not (ours and stage == 2) else []) + \
+            (["dynamic"] if with_dynamic else []) + (["poses"] if pose_lr_scale(config, step) > 0 else [])
         for name in trainable:
             if name in state.optimizers:
                 state.optimizers[name].step()
@@ -368,6 +413,18 @@ class Trainer:
                                   **{k: float(v.detach()) for k, v in losses.items()}})
             if self.train_log is not None:
                 self.train_log.step(state.history, *self._counts(state))
+
+    @staticmethod
+    def _camera(state: RunState, row: int, target: FrameTargets):
+        """The view and world ray directions training row ``row`` renders: the recorded ones, or,
+        when the run refines poses, the corrected (differentiable) pose and its turned rays."""
+        if state.poses is None:
+            return target.view, target.directions
+        recorded = torch.as_tensor(target.view.world_to_camera, dtype=state.poses.translation.dtype,
+                                   device=state.poses.translation.device)
+        delta = state.poses.delta(row)
+        view = dataclasses.replace(target.view, world_to_camera=delta @ recorded)
+        return view, corrected_directions(target.directions, recorded, delta)
 
     def _densify(self, state: RunState, render: dict, stage: int, trainable: list[str],
                  generator: torch.Generator) -> None:

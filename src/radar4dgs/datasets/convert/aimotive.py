@@ -18,7 +18,13 @@ in ``tests/data/test_convert_aimotive.py``):
 * Camera ``RT_body_from_sensor`` already uses OpenCV axes (x right, y down, z forward); the
   converter checks this and converts an x-forward/y-left/z-up camera if it meets one.
 * There are no ego poses in the sample: they are integrated from the radar's Doppler ego-motion
-  (``radar4dgs.radar.poses``), said so in ``source``.
+  (``radar4dgs.radar.poses``), said so in ``source`` (``poses_from_radar``, ``poses_from_odometry``:
+  training refines them by default, issue 27).
+* Calibration: every entry of the two sensors converted is used (intrinsics fx != fy, the five
+  distortion coefficients, both extrinsics); ``sensor/calibration/extrinsic_matrices.json``, where
+  present, must agree with ``calibration.json``; the stated accuracies (the camera's
+  ``misalign_ref_angle_error``, ``reprojection_error`` and ``extrinsic_error``, -1 = unknown) are
+  recorded in ``source.calibration`` (:func:`calibration_record`), with what is not used and why.
 """
 
 from __future__ import annotations
@@ -132,6 +138,61 @@ def box_labels(points_body: np.ndarray, boxes: list[dict], ego_velocity: np.ndar
     return labels
 
 
+# Agreement (max abs entry) required between extrinsic_matrices.json and calibration.json.
+EXTRINSICS_TOLERANCE = 1e-6
+
+
+def _accuracy(value: Any) -> float | None:
+    """A calibration accuracy entry as a number, None where the file says -1 (unknown) or nothing."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return None if number < 0 or not math.isfinite(number) else number
+
+
+def check_extrinsics(calib: dict, path: Path) -> list[str]:
+    """The sensors whose ``RT_body_from_<sensor>`` in ``extrinsic_matrices.json`` (``path``, when it
+    exists) was checked against ``calibration.json``; a disagreement is a SceneError."""
+    if not path.is_file():
+        return []
+    matrices = _read_json(path)
+    checked = []
+    for sensor in (CAMERA, RADAR):
+        key = f"RT_body_from_{sensor}"
+        if key not in matrices:
+            continue
+        a = np.asarray(matrices[key], dtype=np.float64)
+        b = np.asarray(calib[sensor]["RT_body_from_sensor"], dtype=np.float64)
+        if a.shape != (4, 4) or np.abs(a - b).max() > EXTRINSICS_TOLERANCE:
+            raise SceneError(path, f"{key} disagrees with calibration.json's {sensor} RT_body_from_sensor")
+        checked.append(sensor)
+    return checked
+
+
+def calibration_record(calib: dict, checked: list[str]) -> dict:
+    """What of the calibration the conversion uses, the accuracies it states, and what it leaves."""
+    cam, radar = calib[CAMERA], calib[RADAR]
+    custom = cam.get("custom_vars")
+    misalign = custom.get("misalign_ref_angle_error") if isinstance(custom, dict) else None
+    return {
+        "camera": {"model": cam.get("model", "opencv_pinhole"), "focal_length_px": cam.get("focal_length_px"),
+                   "principal_point_px": cam.get("principal_point_px"),
+                   "distortion_coeffs": cam.get("distortion_coeffs"), "extrinsic": "RT_body_from_sensor",
+                   "misalign_ref_angle_error_deg": _accuracy(misalign),
+                   "reprojection_error_px": _accuracy(cam.get("reprojection_error")),
+                   "extrinsic_error": _accuracy(cam.get("extrinsic_error"))},
+        "radar": {"extrinsic": "RT_body_from_sensor", "extrinsic_error": _accuracy(radar.get("extrinsic_error")),
+                  "field_of_view_deg": (radar.get("custom_vars") or {}).get("field_of_view_deg")
+                  if isinstance(radar.get("custom_vars"), dict) else None},
+        "extrinsics_cross_checked": checked,
+        "not_used": {name: ("not converted: this converter reads the front camera and the front radar only"
+                            if calib[name].get("sensor_type") != "imu_ins"
+                            else "IMU biases only; the converter reads no IMU samples")
+                     for name in sorted(calib) if name not in (CAMERA, RADAR) and isinstance(calib[name], dict)},
+    }
+
+
 def _frame_ids(folder: Path, prefix: str, suffix: str) -> list[str]:
     pattern = re.compile(rf"^{re.escape(prefix)}(\d+){re.escape(suffix)}$")
     return sorted(m.group(1) for p in folder.iterdir() if (m := pattern.match(p.name)))
@@ -240,7 +301,7 @@ def _radar_poses(stamps: np.ndarray, scans: list[np.ndarray], config: RadarConfi
     return fits, ego_v, yaw, pose_info, integrate_poses(stamps, ego_v, yaw)
 
 
-def _source(src: Path, scale: float, pose_info: dict, fits: list) -> dict:
+def _source(src: Path, scale: float, pose_info: dict, fits: list, calibration: dict) -> dict:
     """The scene's ``source`` record."""
     return {
         "dataset": "aimotive", "sensors": {"camera": CAMERA, "radar": RADAR}, "path": str(src),
@@ -248,7 +309,8 @@ def _source(src: Path, scale: float, pose_info: dict, fits: list) -> dict:
         "poses": "estimated: no ego-motion file; per-frame radar Doppler ego-motion (RANSAC, median "
                  "smoothed) integrated with the planar non-holonomic lever-arm model "
                  "(radar4dgs.radar.poses)",
-        "poses_from_radar": True, "pose_model": pose_info,
+        "poses_from_radar": True, "poses_from_odometry": True, "pose_model": pose_info,
+        "calibration": calibration,
         "radar_fit_ok_frames": int(sum(f.ok for f in fits)),
         "images": f"undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0) and resized x{scale}",
         "timestamps": "box files' Timestamp, nanoseconds",
@@ -282,6 +344,7 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
     undistort = _Undistorter.build(cam, scale)
     cam_to_ego = opencv_axes(np.asarray(cam["RT_body_from_sensor"], dtype=np.float64), seq.calib_path)
     radar_to_ego = np.asarray(seq.calib[RADAR]["RT_body_from_sensor"], dtype=np.float64)
+    checked = check_extrinsics(seq.calib, seq.calib_path.with_name("extrinsic_matrices.json"))
 
     # ---- radar, boxes, timestamps, and poses from the radar's ego-motion
     scans, boxes, stamps = _read_frames(seq)
@@ -298,7 +361,8 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
 
     camera = Camera(undistort.size_out[0], undistort.size_out[1], undistort.K, cam_to_ego)
     write_scene(out, f"aimotive-{src.name}", camera, RadarSpec(radar_to_ego, RADAR_FIELDS),
-                _source(src, scale, pose_info, fits), frames, scans, frame_files, overwrite, progress, "aimotive")
+                _source(src, scale, pose_info, fits, calibration_record(seq.calib, checked)), frames, scans,
+                frame_files, overwrite, progress, "aimotive")
     return out
 
 
