@@ -76,7 +76,10 @@ def _run_depth(scene: Scene, out_dir: Path, config: DepthConfig, progress: Calla
     # The radar stage has already been renamed into place beside this stage's temporary folder.
     summary = write_depth(scene, out_dir, out_dir / "sky", config, progress,
                           radar_dir=out_dir.parent / "radar")
-    return {"frames": len(summary["frames"]), "fallback_frames": len(summary.get("fallbacks", []))}
+    result = {"frames": len(summary["frames"]), "fallback_frames": len(summary.get("fallbacks", []))}
+    if not scene.has_radar:
+        result["no_radar"] = "the sparse depth of the scene's point cloud"
+    return result
 
 
 def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Callable) -> dict:
@@ -86,6 +89,32 @@ def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Ca
     return {"frames": len(summary["frames"]),
             "frames_with_dynamic_pixels": sum(f["dynamic_pixels"] > 0 for f in summary["frames"])}
 
+
+def _no_radar(scene: Scene, out_dir: Path, config: Any, progress: Callable) -> dict:
+    """Radar (ego-motion) and flow stages of a radar-less scene: nothing to compute (flow is lifted
+    on dynamic pixels only, and a radar-less scene's masks are empty); the folder says why."""
+    atomic_write_json(out_dir / "summary.json", {"skipped": f"{scene.root} has no radar", "pairs": 0,
+                                                 "per_pair": []})
+    return {"no_radar": "nothing to do"}
+
+
+def _masks_no_radar(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Callable) -> dict:
+    """Masks of a radar-less scene: empty (every pixel static), since the segmentation needs radar."""
+    import numpy as np
+    from PIL import Image
+
+    empty = np.zeros((scene.camera.height, scene.camera.width), np.uint8)
+    for frame in progress(scene.frames):
+        Image.fromarray(empty).save(out_dir / f"{frame.name}.png")
+    frames = [{"name": f.name, "anchors": 0, "dynamic_pixels": 0} for f in scene.frames]
+    atomic_write_json(out_dir / "summary.json", {"method": "none: the scene has no radar", "frames": frames})
+    return {"frames": len(frames), "frames_with_dynamic_pixels": 0, "no_radar": "empty dynamic masks"}
+
+
+# A radar-less scene (docs/data/scene-format.md) runs these instead; its depth stage is the sparse
+# depth of its point cloud (radar4dgs.depth.points, chosen inside the depth stage).
+RADARLESS_RUNNERS: dict[str, Callable[..., dict]] = {"radar": _no_radar, "masks": _masks_no_radar,
+                                                     "flow": _no_radar}
 
 STAGES: tuple[Stage, ...] = (
     Stage("radar", _run_radar),
@@ -175,12 +204,22 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
             total = len(items) if hasattr(items, "__len__") else len(scene)
             return tqdm(items, total=total, desc=_name, unit="item", disable=not progress)
 
+        run = stage.run if scene.has_radar else RADARLESS_RUNNERS.get(stage.name, stage.run)
         with atomic_directory(stage_dir, overwrite=True) as tmp:
-            result = stage.run(scene, tmp, stage_config, bar)
+            result = run(scene, tmp, stage_config, bar)
             atomic_write_json(tmp / STAGE_MARKER, {"stage": stage.name, "config": to_dict(stage_config),
                                                    "scene": fingerprint, "result": result})
         status[stage.name] = "ran"
     return status
+
+
+def _radarless_note(stage_dir: Path) -> str:
+    """", the scene has no radar: <what the stage did instead>" for a radar-less scene's stage."""
+    try:
+        note = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"].get("no_radar")
+    except (OSError, ValueError, KeyError, AttributeError):
+        return ""
+    return f" (the scene has no radar: {note})" if note else ""
 
 
 @dataclass
@@ -215,5 +254,5 @@ class PrepareCommand:
                              progress=not self.quiet)
         prepared = self.out if self.out is not None else self.scene / "prepared"
         for name, what in status.items():
-            print(f"{name}: {what} -> {prepared / name}")
+            print(f"{name}: {what}{_radarless_note(prepared / name)} -> {prepared / name}")
         return 0

@@ -311,9 +311,14 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
     """The depth stage writing straight into ``depth_dir`` and ``sky_dir`` (created when absent,
     not atomic: for a caller that already writes into a temporary folder, as the ``prepare``
     stages do). Same outputs and arguments as :func:`prepare_depth`; ``radar_dir`` is the radar
-    stage's folder with the static/dynamic flags (``<prepared>/radar``), or None.
+    stage's folder with the static/dynamic flags (``<prepared>/radar``), or None. A scene without
+    radar gets the sparse depth of its point cloud instead (:mod:`radar4dgs.depth.points`).
     """
     config = config or DepthConfig()
+    if not scene.has_radar:
+        from radar4dgs.depth.points import write_point_depth
+
+        return write_point_depth(scene, depth_dir, sky_dir, config, progress)
     depth_dir, sky_dir = Path(depth_dir), Path(sky_dir)
     depth_dir.mkdir(parents=True, exist_ok=True)
     sky_dir.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ from radar4dgs.io.scene_format import (
                                        IMAGE_SUFFIXES,
                                        OPTIONAL_FOLDERS,
                                        ORTHONORMAL_TOLERANCE,
+                                       POINTS_FILE,
                                        REQUIRED_RADAR_FIELDS,
                                        SceneError,
                                        SceneWarning,
@@ -34,7 +35,8 @@ from radar4dgs.io.scene_write import SceneWriter, save_array, scene_metadata, wr
 
 __all__ = [
     "DEFAULT_TEST_EVERY", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_SUFFIXES", "OPTIONAL_FOLDERS",
-    "ORTHONORMAL_TOLERANCE", "REQUIRED_RADAR_FIELDS", "Camera", "Frame", "RadarScan", "RadarSpec", "Scene",
+    "ORTHONORMAL_TOLERANCE", "POINTS_FILE", "REQUIRED_RADAR_FIELDS", "Camera", "Frame", "RadarScan", "RadarSpec",
+    "Scene",
     "SceneError", "SceneWarning", "SceneWriter", "normalized_times", "read_mask_png", "read_scene",
     "save_array", "scene_metadata", "split_indices", "write_scene_json",
 ]

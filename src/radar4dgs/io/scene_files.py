@@ -57,3 +57,15 @@ def _check_optional_array(path: Path, folder: str, array: np.ndarray, camera: Ca
         raise SceneError(path, f"lidar array has shape {array.shape}, expected (N, 4)")
     if folder == "gt/radar_labels" and array.ndim != 1:
         raise SceneError(path, f"radar labels have shape {array.shape}, expected (N,)")
+
+
+def read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's point cloud (``POINTS_FILE``): (M, 3) float64 world points and (M, 3) float64
+    colours in [0, 1]; a :class:`SceneError` naming the file when it is not finite (M, 6)."""
+    data = _load_npy(path)
+    if data.ndim != 2 or data.shape[1] != 6:
+        raise SceneError(path, f"point cloud has shape {data.shape}, expected (M, 6): x y z r g b")
+    if not np.isfinite(data).all():
+        raise SceneError(path, "point cloud contains NaN or inf")
+    data = data.astype(np.float64)
+    return data[:, :3], np.clip(data[:, 3:], 0.0, 1.0)

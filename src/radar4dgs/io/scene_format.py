@@ -22,6 +22,9 @@ OPTIONAL_FOLDERS: dict[str, str] = {
     "gt/flow": ".npy",
     "gt/radar_labels": ".npy",
 }
+# The optional scene-level point cloud (a radar-less scene's initial points, from COLMAP's
+# points3D or nerfstudio's ply_file_path): float32 (M, 6) x y z (world, m) r g b (0-1).
+POINTS_FILE = "priors/points3d.npy"
 # A rotation block is accepted as orthonormal when ||R^T R - I||_max stays below this; converters
 # write float64 matrices, but float32 round trips in other tools lose about 1e-7.
 ORTHONORMAL_TOLERANCE = 1e-4

@@ -23,7 +23,7 @@ from radar4dgs.io.scene_format import (
     REQUIRED_RADAR_FIELDS,
     SceneError,
 )
-from radar4dgs.io.scene_types import Camera, Frame, RadarSpec, Scene
+from radar4dgs.io.scene_types import Camera, Frame, MissingRadar, RadarSpec, Scene
 
 # --------------------------------------------------------------------------------------------
 # Checked values
@@ -138,9 +138,13 @@ def _parse_camera(meta: Mapping[str, Any], meta_path: Path) -> Camera:
                                            "camera.cam_to_ego", meta_path))
 
 
-def _parse_radar(meta: Mapping[str, Any], meta_path: Path) -> RadarSpec:
-    """The ``radar`` section: unique column names including the required ones, rigid radar_to_ego."""
-    rad = _require(meta, "radar", "", meta_path)
+def _parse_radar(meta: Mapping[str, Any], meta_path: Path) -> RadarSpec | MissingRadar:
+    """The ``radar`` section: unique column names including the required ones, rigid radar_to_ego;
+    a :class:`MissingRadar` when the section is absent or null (a radar-less scene,
+    docs/data/scene-format.md)."""
+    rad = meta.get("radar")
+    if rad is None:
+        return MissingRadar(meta_path.parent)
     fields = _require(rad, "fields", "radar.", meta_path)
     if not isinstance(fields, list) or not all(isinstance(f, str) for f in fields):
         raise SceneError(meta_path, "radar.fields must be a list of column names")
@@ -242,7 +246,8 @@ def read_scene(path: str | Path, check_files: bool = True) -> Scene:
     image_files = tuple(_find_image(root, f.name) for f in frames)
     if check_files:
         _check_images(image_files, camera.width, camera.height)
-        _check_radar_files(root, frames, radar.fields)
+        if isinstance(radar, RadarSpec):
+            _check_radar_files(root, frames, radar.fields)
 
     extra = {k: v for k, v in meta.items() if k not in _SCENE_KEYS}
     return Scene(root, str(meta.get("name", root.name)), camera, radar, frames, dict(source), test_every,

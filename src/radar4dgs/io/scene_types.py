@@ -12,10 +12,11 @@ from typing import Any, Mapping
 import numpy as np
 from PIL import Image
 
-from radar4dgs.io.scene_files import _check_optional_array, _check_radar_shape, _load_npy, read_mask_png
+from radar4dgs.io.scene_files import _check_optional_array, _check_radar_shape, _load_npy, read_mask_png, read_points
 from radar4dgs.io.scene_format import (
     DEFAULT_TEST_EVERY,
     OPTIONAL_FOLDERS,
+    POINTS_FILE,
     REQUIRED_RADAR_FIELDS,
     SceneError,
     SceneWarning,
@@ -57,6 +58,37 @@ class RadarSpec:
             return self.fields.index(name)
         except ValueError:
             raise KeyError(f"radar has no column {name!r}; columns are {list(self.fields)}") from None
+
+
+def no_radar(root: Path | str) -> SceneError:
+    """The error of a step that needs the radar of the radar-less scene ``root``."""
+    return SceneError(root, "has no radar (scene.json has no 'radar' section), which this step needs")
+
+
+class MissingRadar:
+    """The ``radar`` of a radar-less scene: falsy, and any attribute (``fields``,
+    ``radar_to_ego``) raises a :class:`SceneError` naming the scene, so every step that needs
+    radar stops with one line instead of failing on None."""
+
+    def __init__(self, root: Path | str):
+        self.root = Path(root)
+
+    def __bool__(self) -> bool:
+        return False
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):  # copy, pickle and friends probe for these
+            raise AttributeError(name)
+        raise no_radar(self.root)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, MissingRadar) and other.root == self.root
+
+    def __hash__(self) -> int:
+        return hash(("MissingRadar", self.root))
+
+    def __repr__(self) -> str:
+        return "MissingRadar()"
 
 
 @dataclass(frozen=True)
@@ -144,12 +176,16 @@ def split_indices(num_frames: int, test_every: int = DEFAULT_TEST_EVERY) -> tupl
 
 @dataclass(frozen=True)
 class Scene:
-    """A loaded scene folder. Per-frame arrays are read on demand with the ``load_*`` methods."""
+    """A loaded scene folder. Per-frame arrays are read on demand with the ``load_*`` methods.
+
+    ``radar`` is a falsy :class:`MissingRadar` (or None) for a radar-less scene (``scene.json``
+    without a ``radar`` section, as the nerfstudio and COLMAP converters write): every radar
+    accessor then raises a :class:`SceneError` saying the scene has no radar."""
 
     root: Path
     name: str
     camera: Camera
-    radar: RadarSpec
+    radar: RadarSpec | MissingRadar | None
     frames: tuple[Frame, ...]
     source: Mapping[str, Any] = field(default_factory=dict)
     test_every: int = DEFAULT_TEST_EVERY
@@ -171,6 +207,26 @@ class Scene:
     @property
     def duration(self) -> float:
         return float(self.frames[-1].timestamp - self.frames[0].timestamp) if self.frames else 0.0
+
+    # ---- radar and the point cloud
+    @property
+    def has_radar(self) -> bool:
+        return isinstance(self.radar, RadarSpec)
+
+    def require_radar(self) -> RadarSpec:
+        """The radar spec, or a :class:`SceneError` naming the scene: it has no radar."""
+        if not isinstance(self.radar, RadarSpec):
+            raise no_radar(self.root)
+        return self.radar
+
+    @property
+    def has_points(self) -> bool:
+        """True when the scene holds a point cloud (``POINTS_FILE``)."""
+        return (self.root / POINTS_FILE).is_file()
+
+    def load_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The scene's point cloud: (M, 3) float64 world points and (M, 3) colours in [0, 1]."""
+        return read_points(self.root / POINTS_FILE)
 
     # ---- optional folders
     def has(self, folder: str) -> bool:
@@ -201,11 +257,12 @@ class Scene:
     def load_radar(self, index: int) -> RadarScan:
         """The radar scan of frame ``index``; rows with NaN/inf in x, y, z or v_r are dropped with a
         :class:`SceneWarning` that counts them; an empty scan is allowed and warned."""
+        radar = self.require_radar()
         path = self.root / "radar" / f"{self._frame(index).name}.npy"
         data = _load_npy(path)
-        _check_radar_shape(path, data, self.radar.fields)
+        _check_radar_shape(path, data, radar.fields)
         data = data.astype(np.float32, copy=False)
-        required = [self.radar.fields.index(name) for name in REQUIRED_RADAR_FIELDS]
+        required = [radar.fields.index(name) for name in REQUIRED_RADAR_FIELDS]
         finite = np.isfinite(data[:, required]).all(axis=1)
         stored = len(data)
         if not finite.all():
@@ -214,7 +271,7 @@ class Scene:
             data = data[finite]
         if len(data) == 0:
             warnings.warn(f"{path}: empty radar frame", SceneWarning, stacklevel=2)
-        return RadarScan(np.ascontiguousarray(data), self.radar.fields, np.flatnonzero(finite), stored)
+        return RadarScan(np.ascontiguousarray(data), radar.fields, np.flatnonzero(finite), stored)
 
     def load_optional(self, folder: str, index: int) -> np.ndarray:
         """Array of optional ``folder`` for frame ``index``; masks come back as bool (H, W)."""
@@ -236,7 +293,7 @@ class Scene:
 
     def radar_to_world(self, index: int) -> np.ndarray:
         """(4, 4) radar-to-world transform at the radar's capture time of frame ``index``."""
-        return self._frame(index).radar_ego_to_world @ self.radar.radar_to_ego
+        return self._frame(index).radar_ego_to_world @ self.require_radar().radar_to_ego
 
     def radar_to_camera(self, index: int) -> np.ndarray:
         """(4, 4) radar frame to the camera (OpenCV axes) of frame ``index``.

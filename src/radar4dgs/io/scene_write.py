@@ -3,6 +3,7 @@ that writes frame by frame into a temporary folder renamed into place only when 
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -10,7 +11,7 @@ import numpy as np
 from PIL import Image
 
 from radar4dgs.io.atomic import atomic_directory, atomic_save_npy, atomic_write_json
-from radar4dgs.io.scene_format import FORMAT_NAME, FORMAT_VERSION, OPTIONAL_FOLDERS
+from radar4dgs.io.scene_format import FORMAT_NAME, FORMAT_VERSION, OPTIONAL_FOLDERS, POINTS_FILE
 from radar4dgs.io.scene_types import Camera, Frame, RadarSpec
 
 
@@ -18,10 +19,10 @@ def _listify(matrix: np.ndarray) -> list:
     return np.asarray(matrix, dtype=np.float64).tolist()
 
 
-def scene_metadata(name: str, camera: Camera, radar: RadarSpec, frames: Iterable[Frame],
+def scene_metadata(name: str, camera: Camera, radar: RadarSpec | None, frames: Iterable[Frame],
                    source: Mapping[str, Any] | None = None, test_every: int | None = None,
                    extra: Mapping[str, Any] | None = None) -> dict:
-    """The ``scene.json`` object for the given parts."""
+    """The ``scene.json`` object for the given parts (no ``radar`` section without a RadarSpec)."""
     frame_list = []
     for frame in frames:
         entry: dict[str, Any] = {"name": frame.name, "timestamp": float(frame.timestamp),
@@ -36,9 +37,10 @@ def scene_metadata(name: str, camera: Camera, radar: RadarSpec, frames: Iterable
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": name, "source": dict(source or {}),
         "camera": {"width": int(camera.width), "height": int(camera.height), "K": _listify(camera.K),
                    "cam_to_ego": _listify(camera.cam_to_ego)},
-        "radar": {"radar_to_ego": _listify(radar.radar_to_ego), "fields": list(radar.fields)},
         "frames": frame_list,
     }
+    if isinstance(radar, RadarSpec):  # a radar-less scene (None or MissingRadar) has no section
+        meta["radar"] = {"radar_to_ego": _listify(radar.radar_to_ego), "fields": list(radar.fields)}
     if test_every is not None:
         meta["test_every"] = int(test_every)
     meta.update(extra or {})
@@ -92,24 +94,31 @@ class SceneWriter:
             raise RuntimeError("SceneWriter is used outside its `with` block")
         return self._tmp
 
-    def add_frame(self, frame: Frame, image: np.ndarray, radar: np.ndarray, **optional: np.ndarray) -> None:
+    def add_frame(self, frame: Frame, image: np.ndarray | Path, radar: np.ndarray | None,
+                  **optional: np.ndarray) -> None:
         """Write one frame's files.
 
         Args:
             frame: its metadata.
-            image: (H, W, 3) uint8 RGB.
-            radar: (N, F) float32 radar points in the radar frame.
+            image: (H, W, 3) uint8 RGB, or the path of a .png/.jpg file copied as it is.
+            radar: (N, F) float32 radar points in the radar frame; None for a radar-less scene.
             optional: arrays keyed by optional folder with ``/`` replaced by ``_``
                 (``lidar``, ``priors_mono_depth``, ``priors_sky_mask``, ``gt_depth``,
                 ``gt_dynamic_mask``, ``gt_sky_mask``, ``gt_flow``, ``gt_radar_labels``);
                 masks may be bool or uint8 0/255.
         """
         folder = self.folder
-        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        if isinstance(image, Path):
+            # An encoded image copied byte for byte (a converter's JPEGs are not re-encoded).
+            (folder / "images").mkdir(exist_ok=True)
+            shutil.copyfile(image, folder / "images" / f"{frame.name}{image.suffix.lower()}")
+        elif image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
             raise ValueError(f"frame {frame.name}: image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
-        _save_png(folder / "images" / f"{frame.name}.{self.image_format}", image)
-        (folder / "radar").mkdir(exist_ok=True)
-        np.save(folder / "radar" / f"{frame.name}.npy", np.ascontiguousarray(radar, dtype=np.float32))
+        else:
+            _save_png(folder / "images" / f"{frame.name}.{self.image_format}", image)
+        if radar is not None:
+            (folder / "radar").mkdir(exist_ok=True)
+            np.save(folder / "radar" / f"{frame.name}.npy", np.ascontiguousarray(radar, dtype=np.float32))
         for key, value in optional.items():
             name = key.replace("_", "/", 1) if key.startswith(("gt_", "priors_")) else key
             if name not in OPTIONAL_FOLDERS:
@@ -125,7 +134,14 @@ class SceneWriter:
                 np.save(target, np.ascontiguousarray(value, dtype=dtype))
         self.frames.append(frame)
 
-    def finish(self, name: str, camera: Camera, radar: RadarSpec, source: Mapping[str, Any] | None = None,
+    def add_points(self, points: np.ndarray, colors: np.ndarray) -> None:
+        """The scene's point cloud (``POINTS_FILE``): (M, 3) world points, (M, 3) colours in [0, 1]."""
+        target = self.folder / POINTS_FILE
+        target.parent.mkdir(parents=True, exist_ok=True)
+        np.save(target, np.column_stack([np.asarray(points, np.float64).reshape(-1, 3),
+                                         np.asarray(colors, np.float64).reshape(-1, 3)]).astype(np.float32))
+
+    def finish(self, name: str, camera: Camera, radar: RadarSpec | None, source: Mapping[str, Any] | None = None,
                test_every: int | None = None, extra: Mapping[str, Any] | None = None) -> None:
         """Write ``scene.json``; the folder is renamed into place when the ``with`` block ends."""
         meta = scene_metadata(name, camera, radar, self.frames, source, test_every, extra)

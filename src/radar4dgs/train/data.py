@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from radar4dgs.io.scene import normalized_times, read_mask_png
+from radar4dgs.io.scene import SceneError, normalized_times, read_mask_png
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import require_prepared
 from radar4dgs.model.sky import camera_ray_directions
@@ -191,7 +191,12 @@ class MotionTargets:
 def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTargets:
     """Lifted flow pairs (``prepared/flow``) and radar-associated dynamic points of every training
     frame pair, and (``losses.velocity_weight > 0``) the radar objects' points with their velocity;
-    each is None when the scene has none (no dynamic pixels, no flow folder, no objects.json)."""
+    each is None when the scene has none (no dynamic pixels, no flow folder, no objects.json).
+    A scene without radar is refused (a SceneError naming it): its masks are empty and it has no
+    L_rad, so the field would learn nothing."""
+    if not scene.has_radar:
+        raise SceneError(scene.root, "has no radar (--method ours and its ours-* ablations need it: it finds "
+                                     "the moving objects); train it with --method static, deformable or pvg")
     times = normalized_times(scene)
     flow = None
     stats: dict = {}
