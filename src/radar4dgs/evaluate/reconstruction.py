@@ -218,7 +218,10 @@ def mask_caveats(per_frame: dict[str, list[dict]], source: str, pixels_per_frame
 
 
 def radar_overlay(scene, index: int, image: np.ndarray) -> np.ndarray:
-    """``image`` with frame ``index``'s radar points drawn, coloured by raw v_r."""
+    """``image`` with frame ``index``'s radar points drawn, coloured by raw v_r (``image`` itself for
+    a scene without radar)."""
+    if not scene.has_radar:
+        return image
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
         scan = scene.load_radar(index)
