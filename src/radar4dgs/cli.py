@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import importlib
 import io
 import re
@@ -126,6 +127,10 @@ def _one_line_warnings() -> Iterator[None]:
 # line, no traceback. Anything else is a bug and keeps its traceback.
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError,
                                                 IsADirectoryError, PermissionError)
+# A full disk or a read-only output folder is the user's to fix too (radar4dgs.io.atomic names the
+# folder and says which; any other writer's error names its file).
+OUTPUT_ERRNOS = frozenset({errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EROFS, errno.EACCES,
+                           errno.EPERM})
 
 
 def _preset_from_args(args: Sequence[str]) -> str | None:
@@ -217,7 +222,7 @@ def build_command(name: str, args: Sequence[str], debug: bool = True):
 def _is_user_error(exc: BaseException, cls: type | None) -> bool:
     """Whether ``exc`` is a user error: one of :data:`USER_ERRORS`, or of the classes the command
     names in ``USER_ERRORS`` (dotted names, so that naming them imports nothing)."""
-    if isinstance(exc, USER_ERRORS):
+    if isinstance(exc, USER_ERRORS) or (isinstance(exc, OSError) and exc.errno in OUTPUT_ERRNOS):
         return True
     names = set(getattr(cls, "USER_ERRORS", ()))
     return any(f"{c.__module__}.{c.__qualname__}" in names for c in type(exc).__mro__)

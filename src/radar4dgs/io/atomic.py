@@ -5,11 +5,17 @@ Every temporary name carries its owner: ``.<name>.<pid>@<host>.<8 random chars><
 siblings of that form whose owner is gone (same host, pid not alive), so a run killed half-way
 (``kill -9``, a power cut) leaves nothing behind once the next run writes there; a live run's
 temporaries, and those of other hosts (a shared disk), are left alone.
+
+A write that fails because the disk is full or the folder is read-only raises
+:class:`OutputWriteError` (an OSError), whose message names the folder and says which: ``FOLDER:
+disk full (...)`` or ``FOLDER: read-only (...)``; the temporary is removed and the previous output
+is untouched.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import json
 import os
@@ -32,6 +38,43 @@ HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:40] or "localhost"
 TEMP_NAME = re.compile(r"^\.(?P<target>.+)\.(?P<pid>[0-9]+)@(?P<host>[A-Za-z0-9-]+)\.[a-z0-9_]{8}\.[A-Za-z0-9.]+$")
 # Folders whose dead temporaries atomic_path has already removed in this process (once each).
 _CLEANED: set[Path] = set()
+# Why a write fails for want of room or of write access, as the one-line message says it.
+_NO_ROOM = {errno.ENOSPC: "disk full", getattr(errno, "EDQUOT", errno.ENOSPC): "disk full (quota exceeded)"}
+_NO_WRITE = {errno.EROFS: "read-only file system", errno.EACCES: "read-only (permission denied)",
+             errno.EPERM: "read-only (operation not permitted)"}
+
+
+class OutputWriteError(OSError):
+    """An output could not be written: the disk is full or the folder is read-only. The message
+    names the folder; the previous outputs there are untouched."""
+
+    def __str__(self) -> str:  # the message alone, without OSError's "[Errno N]"
+        return str(self.strerror)
+
+
+def output_write_error(folder: str | os.PathLike, name: str, exc: OSError) -> OSError:
+    """An :class:`OutputWriteError` for ``exc`` when it is a full disk or a read-only folder
+    (``FOLDER: disk full (no space left writing NAME); ...``), else ``exc`` itself."""
+    if isinstance(exc, OutputWriteError):
+        return exc
+    why = _NO_ROOM.get(exc.errno) or _NO_WRITE.get(exc.errno)
+    if why is None:
+        return exc
+    what = "free some space" if exc.errno in _NO_ROOM else "make it writable or choose another output"
+    return OutputWriteError(exc.errno, f"{folder}: {why}, cannot write {name} ({exc.strerror or exc}); "
+                                       f"the previous outputs there are untouched; {what}")
+
+
+@contextlib.contextmanager
+def _named_write_errors(folder: Path, name: str) -> Iterator[None]:
+    """Raise a full disk or a read-only folder met in the block as :func:`output_write_error`."""
+    try:
+        yield
+    except OSError as exc:
+        error = output_write_error(folder, name, exc)
+        if error is exc:
+            raise
+        raise error from exc
 
 
 def temp_prefix(name: str) -> str:
@@ -93,18 +136,20 @@ def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]
     exception it is deleted and ``path`` is untouched. ``suffix`` ends the temporary name (some
     writers pick the format from it)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    folder = path.parent.resolve()
-    if folder not in _CLEANED:
-        remove_dead_temporaries(folder)
-        _CLEANED.add(folder)
-    fd, name = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=suffix, dir=path.parent)
-    os.close(fd)
+    with _named_write_errors(path.parent, path.name):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        folder = path.parent.resolve()
+        if folder not in _CLEANED:
+            remove_dead_temporaries(folder)
+            _CLEANED.add(folder)
+        fd, name = tempfile.mkstemp(prefix=temp_prefix(path.name), suffix=suffix, dir=path.parent)
+        os.close(fd)
     tmp = Path(name)
     try:
-        yield tmp
-        os.chmod(tmp, _FILE_MODE)
-        os.replace(tmp, path)
+        with _named_write_errors(path.parent, path.name):
+            yield tmp
+            os.chmod(tmp, _FILE_MODE)
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -155,19 +200,32 @@ def atomic_directory(path: str | os.PathLike, overwrite: bool = False) -> Iterat
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path}: already exists (pass overwrite=True / --overwrite to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    remove_dead_temporaries(path.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".tmp", dir=path.parent))
-    os.chmod(tmp, _DIR_MODE)
+    with _named_write_errors(path.parent, path.name + "/"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        remove_dead_temporaries(path.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".tmp", dir=path.parent))
+        os.chmod(tmp, _DIR_MODE)
     try:
-        yield tmp
-        if path.exists():
-            trash = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".old", dir=path.parent))
-            os.replace(path, trash / path.name)
-            os.replace(tmp, path)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        with _named_write_errors(path.parent, path.name + "/"):
+            yield tmp
+            _replace_directory(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _replace_directory(tmp: Path, path: Path) -> None:
+    """Put folder ``tmp`` in the place of ``path`` by renames (the old one is deleted after); if the
+    second rename fails, the old folder is put back."""
+    if not path.exists():
+        os.replace(tmp, path)
+        return
+    trash = Path(tempfile.mkdtemp(prefix=temp_prefix(path.name), suffix=".old", dir=path.parent))
+    os.replace(path, trash / path.name)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        os.replace(trash / path.name, path)
+        shutil.rmtree(trash, ignore_errors=True)
+        raise
+    shutil.rmtree(trash, ignore_errors=True)
