@@ -51,6 +51,9 @@ API_LAYERS: dict[str, str] = {
     "metrics": "PSNR, SSIM, LPIPS, PSNR* on dynamic pixels; the flow, radar, depth and mask losses.",
     "train": "The three-stage trainer, initialisation, densification, the objective, optimisers, the "
              "standalone motion fit and the method variants.",
+    "actors": "Actors without boxes: the moving objects of a trained run found from its dynamic "
+              "Gaussians' motion, `RUN/actors.json`, edits at render time (remove, move, re-time), "
+              "never-observed masks.",
     "evaluate": "Evaluation of a trained run (metrics, renders, video, HTML report) and scoring of the "
                 "front end against ground truth.",
     "apps": "One module per command (prepare, demo, bench, render, export, viewer, ...).",

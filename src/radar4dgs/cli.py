@@ -69,6 +69,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "Train and evaluate every method (baselines and ablations) on every scene; one table."),
     "batch": ("radar4dgs.apps.batch", "BatchCommand",
         "Reconstruct many scenes at once on Ray (prepare, train, eval, report per scene); one table."),
+    "actors": ("radar4dgs.apps.actors", "ActorsCommand",
+        "List the moving objects (actors) of a trained run, found from its dynamic Gaussians' motion."),
     "render": ("radar4dgs.apps.render", "RenderCommand",
         "Re-render a trained run along a camera path: recorded, lane shift, height, bullet time, custom, nerfstudio."),
     "export": ("radar4dgs.apps.export", "ExportCommand",

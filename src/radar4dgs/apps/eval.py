@@ -21,6 +21,8 @@ class EvalCommand:
     lpips: bool = True  # compute LPIPS when the backbone weights are present (null otherwise)
     video: bool = True  # write RUN/video.mp4
     report: bool = True  # write RUN/report.html
+    # find the moving objects (RUN/actors.json, RUN/actors.png; `radar4dgs actors`), shown in the report
+    actors: bool = True
 
     # A run folder another process holds is a one-line error (radar4dgs.cli).
     USER_ERRORS: ClassVar[tuple[str, ...]] = ("radar4dgs.io.locks.FolderInUseError",)
@@ -44,9 +46,21 @@ class EvalCommand:
             format_metrics,
         )
 
+        if self.actors:
+            self._actors()
         metrics = evaluate_run(self.run_dir, self.device, self.lpips, self.video, self.report)
         print(format_metrics(metrics))
         print(f"written: {self.run_dir / METRICS_FILE}, {self.run_dir / RENDERS_DIR}/"
               + (f", {self.run_dir / VIDEO_FILE}" if self.video else "")
               + (f", {self.run_dir / REPORT_FILE}" if self.report else ""))
         return 0
+
+    def _actors(self) -> None:
+        """RUN/actors.json and RUN/actors.png before the report is written (runs with dynamic Gaussians)."""
+        from radar4dgs.actors.plot import write_actors_picture
+        from radar4dgs.actors.store import run_actors
+        from radar4dgs.model.run import load_run
+
+        run = load_run(self.run_dir, self.device)
+        if run.model.dynamic is not None and len(run.model.dynamic) > 0:
+            write_actors_picture(run, run_actors(run))

@@ -18,6 +18,14 @@ Outputs (``<slug>`` is the spec made file-name safe, e.g. ``lane-shift_2``, ``st
 - ``RUN/<slug>.mp4``: the frames (rgb | depth | dynamic side by side with ``--with-depth``).
 
 ``--out DIR`` puts the frames in ``DIR`` and the video in ``DIR/<slug>.mp4`` instead.
+
+Actor edits (:mod:`radar4dgs.actors.edit`; ids from ``radar4dgs actors RUN``, found on demand):
+``--remove-actors all|ID[,ID...]``, ``--move-actor ID:DX,DY``, ``--retime-actor ID:SCALE|+SECONDS``,
+each repeatable and combinable with every trajectory. They change the actors' Gaussians, not the
+picture. The slug gets the edits appended (``recorded_rm-all``, ``recorded_mv2_3.5,0``), and each frame
+gets ``<00000>_never_observed.png``: the pixels an actor left (dynamic in the unedited render, not in the
+edited one) whose static surface no training frame saw (:mod:`radar4dgs.actors.background`); those
+pixels are filled from their surroundings (OpenCV inpainting) unless ``--no-fill-unobserved``.
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ if TYPE_CHECKING:
 
     from radar4dgs.model.view import View
 
+from radar4dgs.actors.spec import ActorEdits, parse_edits
 from radar4dgs.apps.options import default_is
 from radar4dgs.apps.trajectory import CameraPose, TrajectorySpec, build_trajectory, parse_trajectory
 
@@ -151,13 +160,32 @@ def _check_options(trajectory: str, interpolate: int, scale: float, fps: float) 
     read_camera_path(path)
 
 
+def edit_run(run, edits: ActorEdits | None):
+    """(the run with its model edited, the unedited model) for ``edits`` of its actors (RUN/actors.json,
+    found when missing); ``(run, None)`` without edits. Raises ValueError naming an unknown actor id."""
+    from dataclasses import replace
+
+    from radar4dgs.actors.edit import edited_model
+    from radar4dgs.actors.spec import check_ids
+    from radar4dgs.actors.store import ACTORS_FILE, run_actors
+    from radar4dgs.io.scene import normalized_times
+
+    if edits is None or edits.empty:
+        return run, None
+    actors = run_actors(run) if edits.ids() or not edits.remove_all else []
+    check_ids(edits, actors, str(run.root / ACTORS_FILE))
+    model = edited_model(run.model, actors, edits, normalized_times(run.scene), run.scene.duration)
+    return replace(run, model=model), run.model
+
+
 def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int = 1, with_depth: bool = False,
                       out: Path | None = None, fps: float = 10.0, scale: float = 1.0, device: str | None = None,
-                      video: bool = True, progress: bool = True) -> RenderResult:
+                      video: bool = True, progress: bool = True, edits: ActorEdits | None = None,
+                      fill_unobserved: bool = True) -> RenderResult:
     """Render the run in ``run_dir`` (a path, or a loaded :class:`~radar4dgs.evaluate.reconstruction.Run`)
-    along ``trajectory``; see the module docstring for the outputs. Raises ValueError on a bad spec
-    or option, FileNotFoundError on an incomplete run, :class:`NonFiniteRenderError` on NaN pixels
-    (nothing is left behind then)."""
+    along ``trajectory`` with actor ``edits``; see the module docstring for the outputs. Raises ValueError
+    on a bad spec, option or actor id, FileNotFoundError on an incomplete run, :class:`NonFiniteRenderError`
+    on NaN pixels (nothing is left behind then)."""
     from radar4dgs.apps.trajectory import write_custom_trajectory
     from radar4dgs.evaluate.reconstruction import RENDERS_DIR
     from radar4dgs.io.atomic import atomic_directory
@@ -165,7 +193,10 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
 
     _check_options(trajectory, interpolate, scale, fps)  # a bad spec or file fails before the model loads
     run = run_dir if isinstance(run_dir, Run) else load_run(run_dir, device)
+    run, unedited = edit_run(run, edits)
     slug, views = trajectory_views(run, trajectory, interpolate, scale)
+    if unedited is not None:
+        slug = f"{slug}_{edits.slug()}"
     frames_dir = Path(out) if out is not None else run.root / RENDERS_DIR / slug
     video_path = (frames_dir / f"{slug}.mp4" if out is not None else run.root / f"{slug}.mp4") if video else None
     # The folder is replaced whole: refuse to replace one that is not an earlier rendering (a
@@ -182,7 +213,8 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
         indices = tqdm(indices, desc=f"render {slug}", unit="view")
     with atomic_directory(frames_dir, overwrite=True) as folder:
         write_custom_trajectory(folder / TRAJECTORY_FILE, [CameraPose(v.world_to_camera, v.time) for v in views])
-        frames = _render_frames(run, views, indices, folder, with_depth, trajectory)
+        frames = _render_frames(run, views, indices, folder, with_depth, trajectory,
+                                Unobserved.of(run, unedited, fill_unobserved))
         if video_path is None:
             for _ in frames:
                 pass
@@ -196,8 +228,37 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
     return RenderResult(frames_dir, video_path, slug, len(views), views[0].width, views[0].height)
 
 
-def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bool, label: str) -> Iterator[np.ndarray]:
-    """Render and save each view; yield the video frame of each (rgb, or rgb | depth | dynamic)."""
+@dataclass
+class Unobserved:
+    """What marks and fills the pixels edited actors leave: the ``unedited`` model, the training frames'
+    ``visibility`` (:func:`radar4dgs.actors.background.training_visibility`), ``fill`` (inpaint them)."""
+
+    unedited: object
+    visibility: list
+    fill: bool
+
+    @classmethod
+    def of(cls, run, unedited, fill: bool) -> Optional["Unobserved"]:
+        from radar4dgs.actors.background import training_visibility
+
+        return None if unedited is None else cls(unedited, training_visibility(run, scale=0.5), fill)
+
+    def mask(self, run, view: View, rendered: dict) -> np.ndarray:
+        """(H, W) bool never-observed pixels of ``view`` among those the edited actors left."""
+        import torch
+
+        from radar4dgs.actors.background import DYNAMIC_WEIGHT, never_observed_mask
+
+        with torch.no_grad():
+            before = self.unedited.render(view, run.config.raster)["dynamic"].cpu().numpy()
+        region = (before > DYNAMIC_WEIGHT) & (rendered["dynamic"].cpu().numpy() <= DYNAMIC_WEIGHT)
+        return never_observed_mask(run, view, region, self.visibility)
+
+
+def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bool, label: str,
+                   unobserved: Unobserved | None = None) -> Iterator[np.ndarray]:
+    """Render and save each view (and its never-observed mask with ``unobserved``); yield the video frame
+    of each (rgb, or rgb | depth | dynamic)."""
     import torch
 
     from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, render_view, to_uint8
@@ -210,6 +271,13 @@ def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bo
             rendered = render_view(run, view)
         check_finite(rendered, f"view {i} of trajectory {label!r} (time {view.time:.4f})")
         rgb = to_uint8(rendered["rgb"])
+        if unobserved is not None:
+            never = unobserved.mask(run, view, rendered)
+            save_png(folder / f"{i:05d}_never_observed.png", mask_to_rgb(never))
+            if unobserved.fill and never.any():
+                import cv2
+
+                rgb = cv2.inpaint(rgb, never.astype(np.uint8), 3, cv2.INPAINT_TELEA)
         save_png(folder / f"{i:05d}.png", rgb)
         if not with_depth:
             yield rgb
@@ -247,6 +315,16 @@ class RenderCommand:
     device: Annotated[Optional[str], default_is("the one the run was trained on")] = None
     # Write the video.
     video: bool = True
+    # Remove actors: all | ID[,ID...] (ids from `radar4dgs actors RUN`).
+    remove_actors: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
+    # Move an actor: ID:DX,DY metres in its own frame (DX lateral, + = its left; DY longitudinal, + =
+    # forward); repeatable.
+    move_actor: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
+    # Re-time an actor: ID:SCALE (its time runs SCALE times as fast) or ID:+SECONDS / ID:-SECONDS
+    # (later / earlier).
+    retime_actor: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
+    # Inpaint the never-observed pixels an edited actor leaves (their mask is written either way).
+    fill_unobserved: bool = True
     # Torch intra-op threads (0 = torch's default; 1 is much faster on a machine busy with other jobs).
     threads: int = 0
     # Hide the progress bar.
@@ -255,12 +333,14 @@ class RenderCommand:
     def run(self) -> int:
         from radar4dgs.train.fit_motion import torch_threads
 
-        # A missing run or a bad trajectory raises a user error: one line (radar4dgs.cli).
+        # A missing run, a bad trajectory or edit raises a user error: one line (radar4dgs.cli).
+        edits = parse_edits(self.remove_actors, self.move_actor, self.retime_actor)
         with torch_threads(self.threads):
             result = render_trajectory(self.run_dir, self.trajectory, interpolate=self.interpolate,
                                        with_depth=self.with_depth, out=self.out, fps=self.fps,
                                        scale=self.scale, device=self.device, video=self.video,
-                                       progress=not self.quiet)
+                                       progress=not self.quiet, edits=edits,
+                                       fill_unobserved=self.fill_unobserved)
         print(f"rendered {result.poses} views ({result.width}x{result.height}) of {self.trajectory!r}: "
               f"{result.frames}/" + (f", {result.video}" if result.video is not None else ""))
         return 0

@@ -350,17 +350,28 @@ def _panels_section(panels: Sequence[Mapping[str, Any]], max_image_width: int | 
     return "\n".join(parts) + "\n"
 
 
+def _actors_section(picture: bytes | None) -> str:
+    """The actors' bird's-eye view (``RUN/actors.png``, PNG bytes), when there is one."""
+    if not picture:
+        return ""
+    uri = "data:image/png;base64," + base64.b64encode(picture).decode("ascii")
+    return ("<h2>Actors</h2>\n<p class=\"caption\">The moving objects found from the dynamic Gaussians' motion "
+            "(<code>radar4dgs actors</code>, <code>actors.json</code>): their centroids' tracks over the static "
+            f"map.</p>\n<img class=\"plot\" alt=\"actors\" src=\"{uri}\">\n")
+
+
 def render_report(*, title: str, metrics: Mapping[str, Any],
                   per_frame: Mapping[str, Sequence[Mapping[str, Any]]],
                   history: Sequence[Mapping[str, Any]], panels: Sequence[Mapping[str, Any]],
                   max_image_width: int | None = None, run_info: Mapping[str, Any] | None = None,
                   caveats: Sequence[str] = (), links: Mapping[str, str] | None = None,
                   video: str | None = None, config: Mapping[str, Any] | None = None,
-                  flagged: Sequence[str] = (), poses: Mapping[str, Any] | None = None) -> str:
+                  flagged: Sequence[str] = (), poses: Mapping[str, Any] | None = None,
+                  actors_picture: bytes | None = None) -> str:
     """The report's HTML text (see :func:`write_report`)."""
     body = (_run_section(run_info or {}, links or {}, video, config) + _metrics_section(metrics, flagged)
             + _caveats_section(caveats) + _per_frame_section(per_frame) + _history_section(history)
-            + _poses_section(poses) + _panels_section(panels, max_image_width))
+            + _poses_section(poses) + _actors_section(actors_picture) + _panels_section(panels, max_image_width))
     return (f"<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             f"<title>{_esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
             f"<h1>{_esc(title)}</h1>\n{body}</body>\n</html>\n")
@@ -390,10 +401,11 @@ def write_report(path: str | os.PathLike, *, title: str, metrics: Mapping[str, A
     name of a video beside the report, played in the page; ``config``: the resolved config, shown
     as JSON in a collapsed block; ``flagged``: the splits whose PSNR* is flagged by a caveat, marked
     in the metrics table; ``poses``: ``RUN/poses.json`` of a run that refined poses or exposure,
-    plotted per frame.
+    plotted per frame. An ``actors.png`` beside ``path`` (``radar4dgs actors``) is shown too.
     """
+    actors = Path(path).with_name("actors.png")
     text = render_report(title=title, metrics=metrics, per_frame=per_frame, history=history,
                          panels=panels, max_image_width=max_image_width, run_info=run_info,
                          caveats=caveats, links=links, video=video, config=config, flagged=flagged,
-                         poses=poses)
+                         poses=poses, actors_picture=actors.read_bytes() if actors.is_file() else None)
     return atomic_write_text(path, text)

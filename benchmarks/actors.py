@@ -1,0 +1,177 @@
+"""Benchmark of actor discovery and clean backgrounds (issue 24) on synthetic scenes with ground truth.
+
+    python benchmarks/actors.py --seeds 106 107 108 109 110 [--traffic realistic] [--preset tiny]
+                                [--iterations 600] [--work /tmp/radar4dgs-actors-bench]
+                                [--out benchmarks/results/actors.json] [--run RUN ...]
+
+Seeds fixed before looking, the project's convention: realistic traffic 101-105 tune (the discovery
+thresholds were set on 101 only), 106-110 report. Per seed: `radar4dgs synth --traffic realistic`
+at --preset, prepared, its background render (the generator's same world without its moving objects,
+``gt/background``), trained with the preset's config and --iterations (CPU budget), then:
+
+- actors (``radar4dgs.actors.discover``) against the generator's moving objects (visible within 60 m
+  in >= 5 frames): count, recall, precision, spurious actors, median planar centroid error (m) and
+  median planar velocity error (m/s) over every common frame of the matched pairs;
+- on the test frames (every 4th), over the pixels the moving objects cover (gt/dynamic_mask): PSNR
+  of the render with every actor removed (the static layer) against the background render, and of
+  the unedited render against it (what "not removing" leaves), pooled over the frames;
+- the fraction of those pixels marked "never observed" (``radar4dgs.actors.background``).
+
+``--run RUN`` scores an already trained run of a synthetic scene too (its scene needs gt/background,
+written here when missing). Finished runs under --work are reused. Writes the JSON after every scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from radar4dgs.io.atomic import atomic_write_json
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def build_scene(seed: int, traffic: str, preset_name: str, work: Path) -> Path:
+    """Synthesize and prepare one scene under work/scenes/, with its background render; reused."""
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.config import preset
+    from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
+    from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
+
+    scene = work / "scenes" / f"{preset_name}-{traffic}-s{seed}"
+    if not (scene / "scene.json").is_file():
+        synthesize(preset(SynthConfig, preset_name, seed=seed, traffic=traffic_profile(traffic)), scene,
+                   overwrite=True, progress=False, preset=preset_name)
+    if not (scene / "prepared" / "config.json").is_file():
+        run_prepare(scene, scene / "prepared", preset(PrepareConfig, preset_name), progress=False)
+    if not (scene / BACKGROUND_DIR).is_dir():
+        write_backgrounds(scene)
+    return scene
+
+
+def train_scene(scene: Path, preset_name: str, iterations: int, out: Path) -> Path:
+    """Train ``scene`` into ``out`` (reused when its model exists)."""
+    from radar4dgs.config import preset
+    from radar4dgs.model.config import TrainConfig
+    from radar4dgs.train.trainer import train_run
+
+    if not (out / "model.pt").is_file():
+        config = preset(TrainConfig, preset_name, threads=1, optim={"iterations": iterations})
+        train_run(scene, scene / "prepared", out, config, progress=False, tensorboard=False)
+    return out
+
+
+def psnr(squared_error: float, count: int) -> float | None:
+    return None if count == 0 else float(10 * np.log10(1.0 / max(squared_error / count, 1e-12)))
+
+
+def background_scores(run, actors) -> dict:
+    """PSNR over the test frames' moving-object pixels: every actor removed vs the background render,
+    the unedited render vs it; the fraction of those pixels marked never observed."""
+    import torch
+
+    from radar4dgs.actors.background import never_observed_mask, training_visibility
+    from radar4dgs.actors.edit import edited_model
+    from radar4dgs.actors.spec import ActorEdits
+    from radar4dgs.datasets.synth.background import BACKGROUND_DIR
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.view import frame_view
+
+    scene, times = run.scene, normalized_times(run.scene)
+    removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
+    visibility = training_visibility(run, scale=1.0)
+    sums = {"removed": 0.0, "kept": 0.0}
+    count = never = 0
+    for i in scene.test_indices:
+        mask = scene.load_optional("gt/dynamic_mask", i) > 0
+        if not mask.any():
+            continue
+        import cv2
+
+        background = cv2.cvtColor(cv2.imread(str(scene.root / BACKGROUND_DIR / f"{scene.frames[i].name}.png")),
+                                  cv2.COLOR_BGR2RGB).astype(np.float64) / 255
+        view = frame_view(scene, i, 1.0, times)
+        with torch.no_grad():
+            edited = removed.render(view, run.config.raster)
+            full = run.model.render(view, run.config.raster)
+        for key, out in (("removed", edited), ("kept", full)):
+            rgb = out["rgb"].clamp(0, 1).double().cpu().numpy()
+            sums[key] += float(((rgb - background)[mask] ** 2).sum() / 3)
+        count += int(mask.sum())
+        never += int(never_observed_mask(run, view, mask, visibility).sum())
+    return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
+            "pixels": count, "never_observed_fraction": never / count if count else None}
+
+
+def score_run(run_dir: Path) -> dict:
+    """Actors and background scores of one trained run of a synthetic scene."""
+    from radar4dgs.actors.discover import discover_actors
+    from radar4dgs.actors.groundtruth import scene_movers, score_actors
+    from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
+    from radar4dgs.model.run import load_run
+    from radar4dgs.radar.objects import load_radar_objects
+
+    run = load_run(run_dir, "cpu")
+    if not (run.scene.root / BACKGROUND_DIR).is_dir():
+        write_backgrounds(run.scene.root)
+    start = time.perf_counter()
+    actors = discover_actors(run.model, run.scene, load_radar_objects(run.prepared))
+    seconds = time.perf_counter() - start
+    result = {"run": str(run_dir), "scene": str(run.scene.root), "discovery_seconds": round(seconds, 2),
+              "n_dynamic": len(run.model.dynamic) if run.model.dynamic is not None else 0,
+              **score_actors(actors, scene_movers(run.scene)), **background_scores(run, actors)}
+    result["gain_db"] = (None if result["psnr_removed"] is None or result["psnr_kept"] is None
+                         else result["psnr_removed"] - result["psnr_kept"])
+    return result
+
+
+def summary(rows: list[dict]) -> dict:
+    """Means over scenes of the headline numbers (None entries skipped)."""
+    keys = ("recall", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
+            "psnr_kept", "gain_db", "never_observed_fraction")
+    out = {}
+    for key in keys:
+        values = [r[key] for r in rows if r.get(key) is not None]
+        out[key] = float(np.mean(values)) if values else None
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[106, 107, 108, 109, 110])
+    parser.add_argument("--traffic", default="realistic")
+    parser.add_argument("--preset", default="tiny")
+    parser.add_argument("--iterations", type=int, default=600)
+    parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-actors-bench"))
+    parser.add_argument("--out", type=Path, default=RESULTS / "actors.json")
+    parser.add_argument("--run", type=Path, nargs="*", default=[], help="already trained runs to score too")
+    args = parser.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    rows: list[dict] = []
+    document = {"settings": {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations,
+                             "seeds": args.seeds}, "scenes": rows}
+    jobs = [(f"s{seed}", seed) for seed in args.seeds] + [(str(path), path) for path in args.run]
+    for label, job in jobs:
+        start = time.perf_counter()
+        if isinstance(job, int):
+            scene = build_scene(job, args.traffic, args.preset, args.work)
+            run_dir = train_scene(scene, args.preset, args.iterations, args.work / "runs" / scene.name)
+        else:
+            run_dir = job
+        row = {"label": label, **score_run(run_dir), "seconds": round(time.perf_counter() - start, 1)}
+        rows.append(row)
+        document["summary"] = summary([r for r in rows if r["label"].startswith("s")])
+        atomic_write_json(args.out, document)
+        print(json.dumps({k: v for k, v in row.items() if k != "pairs"}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""Options of actor discovery (:mod:`radar4dgs.actors.discover`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+
+@dataclass
+class ActorConfig:
+    """Grouping the dynamic Gaussians into actors: trajectories sampled under the deformation field,
+    a motion-affinity graph, its connected components, then merges through shared radar tracks."""
+
+    # Trajectories are sampled at this many of the scene's frame times (evenly spread, first and last
+    # included); all frames when the scene has fewer. The affinity test is a max over these samples.
+    sample_frames: int = 16
+    # Two Gaussians are linked when, at EVERY sampled time, they lie within this distance (m, per axis:
+    # the Chebyshev distance of their stacked trajectories). Neighbouring Gaussians on one car are
+    # ~0.1-0.5 m apart, so the chain of links spans the car; two cars that pass each other are close
+    # at one time only, and two cars in adjacent lanes ~3.5 m apart are never linked.
+    link_distance: float = 0.8
+    # Each Gaussian links to at most this many nearest others within `link_distance` (a sparse graph
+    # that stays connected across a body, at a cost linear in the number of Gaussians).
+    neighbours: int = 12
+    # Gaussians whose opacity is below this take no part (they barely render).
+    min_opacity: float = 0.05
+    # Gaussians that move less than this (m, largest displacement from their mean position over the
+    # sampled times) are not part of any moving actor (dynamic Gaussians the field keeps still).
+    min_motion: float = 0.5
+    # A component with fewer Gaussians is no actor; its Gaussians join the nearest actor when within
+    # `attach_distance` (same Chebyshev measure), else stay unassigned.
+    min_gaussians: int = 15
+    # See `min_gaussians`.
+    attach_distance: float = 2.0
+    # Actors whose centroids stay within this distance (m, planar, at every frame both are visible)
+    # and that share a radar track in at least half of those frames are one actor (one car split in two).
+    merge_distance: float = 5.0
+    # See `merge_distance`: two actors whose median velocity difference (m/s, planar, over the frames both
+    # are visible in) is below this are one too, radar or not (a body whose field is not exactly rigid).
+    merge_velocity: float = 2.0
+    # A radar object belongs to an actor in a frame when its centroid lies within this margin (m, planar)
+    # of the actor's Gaussians' bounding box there.
+    radar_margin: float = 1.5
+    # A frame counts as a frame of visibility when at least this fraction of the actor's Gaussians
+    # project inside the image in front of the camera and within `max_range` of it.
+    visible_fraction: float = 0.2
+    # See `visible_fraction` (m).
+    max_range: float = 80.0
+
+    PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
+        # One set of values for every size: the thresholds are metres in the world, not pixels.
+        "tiny": {}, "small": {}, "paper": {"sample_frames": 24},
+    }
