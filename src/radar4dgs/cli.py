@@ -50,7 +50,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "convert nerfstudio": ("radar4dgs.datasets.convert.nerfstudio", "ConvertNerfstudioCommand",
         "Convert a nerfstudio dataset (transforms.json, images, optional ply) into a radar-less scene folder."),
     "convert colmap": ("radar4dgs.datasets.convert.colmap", "ConvertColmapCommand",
-        "Convert a COLMAP text model (cameras, images, points3D) and its images into a radar-less scene folder."),
+        "Convert a COLMAP model (cameras, images, points3D) and its images into a radar-less scene folder."),
     "inspect": ("radar4dgs.apps.inspect", "InspectCommand",
         "Summarise a scene folder and write a contact sheet of frames with radar points coloured by v_r."),
     "seg-train": ("radar4dgs.apps.seg_train", "SegTrainCommand",

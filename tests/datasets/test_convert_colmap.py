@@ -4,6 +4,7 @@ in one line."""
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import cv2
@@ -39,6 +40,46 @@ def test_the_export_of_a_run_converts_back_to_the_scenes_cameras(tiny_trained_ru
     np.testing.assert_allclose(colors * 255, np.array([r[4:7] for r in rows], float), atol=1e-4)
     # COLMAP has no times: the frames' order, 0.1 s apart.
     np.testing.assert_allclose([f.timestamp for f in scene.frames], np.arange(len(scene)) * 0.1)
+
+
+def test_the_binary_model_reads_as_the_text_one(tiny_trained_run, tmp_path):
+    exported = tmp_path / "colmap"
+    assert main(["export", str(tiny_trained_run / "run"), "--format", "colmap", "--out", str(exported)]) == 0
+    text = read_scene(convert_colmap(exported, tmp_path / "text", progress=False))
+    for name in ("cameras", "images", "points3D"):
+        (exported / "sparse" / "0" / f"{name}.txt").unlink()
+    binary = read_scene(convert_colmap(exported, tmp_path / "binary", progress=False))
+    assert (text.source["model"], binary.source["model"]) == ("text", "binary")
+    np.testing.assert_array_equal(binary.camera.K, text.camera.K)
+    for i in range(len(text)):
+        np.testing.assert_allclose(binary.world_to_camera(i), text.world_to_camera(i), atol=1e-12)
+    np.testing.assert_array_equal(binary.load_points()[0], text.load_points()[0])
+    np.testing.assert_array_equal(binary.load_points()[1], text.load_points()[1])
+
+
+def test_a_hand_written_binary_model_skips_2d_points_and_tracks(tmp_path):
+    root = _model(tmp_path / "p", f"SIMPLE_PINHOLE {W} {H} 50.0 32.0 24.0")
+    model = root / "sparse" / "0"
+    for name in ("cameras", "images", "points3D"):
+        (model / f"{name}.txt").unlink()
+    (model / "cameras.bin").write_bytes(struct.pack("<QiiQQ3d", 1, 7, 0, W, H, 50.0, 32.0, 24.0))
+    chunks = [struct.pack("<Q", len(POSES))]
+    for k, (name, (q, t)) in enumerate(POSES.items()):
+        chunks += [struct.pack("<i7di", k + 1, *q, *t, 7), name.encode() + b"\x00", struct.pack("<Q", 2),
+                   struct.pack("<ddqddq", 10.0, 20.0, 1, 12.5, 3.0, -1)]
+    (model / "images.bin").write_bytes(b"".join(chunks))
+    chunks = [struct.pack("<Q", len(POINTS))]
+    for j, p in enumerate(POINTS):
+        chunks += [struct.pack("<Q3d3Bd", j + 1, *p[:3], *p[3:], 0.5), struct.pack("<Q", 2),
+                   struct.pack("<iiii", 1, 0, 2, 1)]
+    (model / "points3D.bin").write_bytes(b"".join(chunks))
+    scene = read_scene(convert_colmap(root, tmp_path / "scene", progress=False))
+    np.testing.assert_allclose(scene.camera.K, [[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    assert [f.name for f in scene.frames] == ["a", "b"]
+    for i, name in enumerate(["a.png", "b.png"]):
+        np.testing.assert_allclose(scene.world_to_camera(i), _w2c(*POSES[name]), atol=1e-12)
+    np.testing.assert_allclose(scene.load_points()[0], [p[:3] for p in POINTS])
+    np.testing.assert_allclose(scene.load_points()[1], [[1.0, 0, 0], [0, 128 / 255, 1.0]], atol=1e-7)
 
 
 def _w2c(qvec, tvec) -> np.ndarray:
@@ -127,17 +168,23 @@ def test_user_errors_are_one_line(tmp_path, capsys):
         assert not (tmp_path / "out").exists()
         return err
 
-    assert refused(tmp_path / "nowhere").endswith("nowhere: missing folder (a COLMAP project or text model)")
+    assert refused(tmp_path / "nowhere").endswith("nowhere: missing folder (a COLMAP project or model)")
     fisheye = _model(tmp_path / "f", f"OPENCV_FISHEYE {W} {H} 50 50 32 24 0.1 0 0 0")
     assert refused(fisheye).endswith("sparse/0/cameras.txt: camera model OPENCV_FISHEYE is not supported "
                                      "(SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV); undistort "
                                      "the images first (`colmap image_undistorter`)")
     short = _model(tmp_path / "s", f"PINHOLE {W} {H} 50 50 32")
     assert refused(short).endswith("cameras.txt: camera model PINHOLE has 4 parameters, got 3")
+    (tmp_path / "n" / "sparse" / "0").mkdir(parents=True)
+    assert refused(tmp_path / "n").endswith("n: not a COLMAP model (no cameras.txt or cameras.bin in it, sparse/0 or "
+                                            "sparse)")
     binary = tmp_path / "b" / "sparse" / "0"
     binary.mkdir(parents=True)
-    (binary / "cameras.bin").write_bytes(b"")
-    assert "not a COLMAP text model (only the text model is read: `colmap model_converter" in refused(tmp_path / "b")
+    (tmp_path / "b" / "images").mkdir()
+    (binary / "cameras.bin").write_bytes(struct.pack("<QiiQQ", 1, 1, 11, W, H))
+    assert refused(tmp_path / "b").endswith("cameras.bin: camera 1: unknown camera model id 11")
+    (binary / "cameras.bin").write_bytes(struct.pack("<QiiQQ3d", 1, 1, 1, W, H, 50.0, 50.0, 32.0))
+    assert refused(tmp_path / "b").endswith("cameras.bin: truncated binary model at byte 32")
     broken = _model(tmp_path / "x", f"PINHOLE {W} {H} 50 50 32 24")
     (broken / "sparse" / "0" / "images.txt").write_text("1 1 0 0 0 0 0 zero 7 a.png\n\n")
     assert "images.txt: line 1: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME" in refused(broken)

@@ -1,8 +1,9 @@
-"""``radar4dgs convert colmap``: a COLMAP text model (``cameras.txt``, ``images.txt``,
-``points3D.txt``) and its images into a radar-less scene folder (docs/data/scene-format.md,
-docs/data/converters.md).
+"""``radar4dgs convert colmap``: a COLMAP model (text ``cameras.txt``, ``images.txt``,
+``points3D.txt``, or the binary ``.bin`` files COLMAP writes by default) and its images into a
+radar-less scene folder (docs/data/scene-format.md, docs/data/converters.md).
 
-The model is ``SRC`` itself when it holds ``cameras.txt``, else ``SRC/sparse/0`` or ``SRC/sparse``;
+The model is ``SRC`` itself when it holds ``cameras.txt`` or ``cameras.bin``, else ``SRC/sparse/0``
+or ``SRC/sparse`` (the text files when both forms are there);
 the images are ``--images``, else ``SRC/images`` or the ``images`` folder beside ``sparse/``.
 Camera models: SIMPLE_PINHOLE and PINHOLE as they are; SIMPLE_RADIAL, RADIAL, OPENCV and
 FULL_OPENCV undistorted with OpenCV (same coefficients, ``getOptimalNewCameraMatrix`` alpha 0);
@@ -16,6 +17,7 @@ COLMAP readers order them), ``--frame-interval`` seconds apart.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
@@ -120,16 +122,96 @@ def read_points3d(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return table[:, :3], np.clip(table[:, 3:] / 255.0, 0.0, 1.0)
 
 
+# COLMAP's binary model ids -> (name, number of parameters), as its read_write_model.py.
+BINARY_MODELS = {0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5),
+                 4: ("OPENCV", 8), 5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5),
+                 8: ("SIMPLE_RADIAL_FISHEYE", 4), 9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12)}
+
+
+class _Reader:
+    """Little-endian values read one after another from a binary model file."""
+
+    def __init__(self, path: Path):
+        if not path.is_file():
+            raise SceneError(path, "missing file (a COLMAP binary model has cameras.bin, images.bin, points3D.bin)")
+        self.path, self.data, self.at = path, path.read_bytes(), 0
+
+    def take(self, fmt: str) -> tuple:
+        try:
+            values = struct.unpack_from("<" + fmt, self.data, self.at)
+        except struct.error:
+            raise SceneError(self.path, f"truncated binary model at byte {self.at}") from None
+        self.at += struct.calcsize("<" + fmt)
+        return values
+
+    def name(self) -> str:
+        end = self.data.find(b"\x00", self.at)
+        if end < 0:
+            raise SceneError(self.path, f"truncated binary model at byte {self.at}")
+        text, self.at = self.data[self.at:end].decode("utf-8", "replace"), end + 1
+        return text
+
+
+def read_cameras_bin(path: Path) -> dict[int, tuple[str, int, int, list[float]]]:
+    """``cameras.bin``, as :func:`read_cameras`."""
+    reader, cameras = _Reader(path), {}
+    for _ in range(reader.take("Q")[0]):
+        camera_id, model_id, width, height = reader.take("iiQQ")
+        if model_id not in BINARY_MODELS:
+            raise SceneError(path, f"camera {camera_id}: unknown camera model id {model_id}")
+        name, count = BINARY_MODELS[model_id]
+        cameras[camera_id] = (name, int(width), int(height), list(reader.take(f"{count}d")))
+    return cameras
+
+
+def read_images_bin(path: Path) -> list[tuple[str, np.ndarray, int]]:
+    """``images.bin``, as :func:`read_images` (the 2D points are skipped)."""
+    reader, images = _Reader(path), []
+    for _ in range(reader.take("Q")[0]):
+        _, qw, qx, qy, qz, tx, ty, tz, camera_id = reader.take("i7di")
+        name = reader.name()
+        points2d = reader.take("Q")[0]  # (read before `at` is: `at += take()` would lose its 8 bytes)
+        reader.at += 24 * points2d  # x, y (double), POINT3D_ID (int64) per 2D point
+        w2c = np.eye(4)
+        w2c[:3, :3] = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
+        w2c[:3, 3] = (tx, ty, tz)
+        images.append((name, w2c, camera_id))
+    if not images:
+        raise SceneError(path, "no images")
+    return images
+
+
+def read_points3d_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``points3D.bin``, as :func:`read_points3d` (errors and tracks skipped)."""
+    reader = _Reader(path)
+    count = reader.take("Q")[0]
+    xyz, rgb = np.zeros((count, 3)), np.zeros((count, 3))
+    for k in range(count):
+        values = reader.take("Q3d3Bd")
+        xyz[k], rgb[k] = values[1:4], values[4:7]
+        track = reader.take("Q")[0]
+        reader.at += 8 * track  # IMAGE_ID, POINT2D_IDX (int32 each) per track element
+    return xyz, rgb / 255.0
+
+
+def read_model(model: Path) -> tuple[dict, list, tuple[np.ndarray, np.ndarray], str]:
+    """Cameras, images and points of the model folder (text when it has ``cameras.txt``, else
+    binary) and which form was read."""
+    if (model / "cameras.txt").is_file():
+        return (read_cameras(model / "cameras.txt"), read_images(model / "images.txt"),
+                read_points3d(model / "points3D.txt"), "text")
+    return (read_cameras_bin(model / "cameras.bin"), read_images_bin(model / "images.bin"),
+            read_points3d_bin(model / "points3D.bin"), "binary")
+
+
 def locate(src: Path, images: Optional[Path]) -> tuple[Path, Path]:
     """The model folder and the images folder of ``src`` (module doc)."""
     if not src.is_dir():
-        raise SceneError(src, "missing folder (a COLMAP project or text model)")
-    model = next((m for m in (src, src / "sparse" / "0", src / "sparse") if (m / "cameras.txt").is_file()), None)
+        raise SceneError(src, "missing folder (a COLMAP project or model)")
+    model = next((m for m in (src, src / "sparse" / "0", src / "sparse")
+                  if (m / "cameras.txt").is_file() or (m / "cameras.bin").is_file()), None)
     if model is None:
-        binary = any((m / "cameras.bin").is_file() for m in (src, src / "sparse" / "0", src / "sparse"))
-        hint = ("only the text model is read: `colmap model_converter --input_path MODEL --output_path MODEL "
-                "--output_type TXT` writes it") if binary else "no cameras.txt in it, sparse/0 or sparse"
-        raise SceneError(src, f"not a COLMAP text model ({hint})")
+        raise SceneError(src, "not a COLMAP model (no cameras.txt or cameras.bin in it, sparse/0 or sparse)")
     if images is None:
         images = next((d for d in (src / "images", model.parent.parent / "images", model / "images") if d.is_dir()),
                       src / "images")
@@ -162,22 +244,22 @@ def scene_camera(cameras: dict, used: set[int], where: Path) -> tuple[np.ndarray
 def convert_colmap(src: str | Path, out: str | Path, images: str | Path | None = None,
                    frame_interval: float = DEFAULT_FRAME_INTERVAL, test_every: int = DEFAULT_TEST_EVERY,
                    overwrite: bool = False, progress: bool = True) -> Path:
-    """Convert the COLMAP text model in ``src`` into the radar-less scene folder ``out`` and return
+    """Convert the COLMAP model in ``src`` into the radar-less scene folder ``out`` and return
     ``out`` (module doc)."""
     src, out = Path(src), Path(out)
     refuse_existing(out, overwrite)
     model, image_dir = locate(src, None if images is None else Path(images))
-    cameras = read_cameras(model / "cameras.txt")
-    registered = sorted(read_images(model / "images.txt"), key=lambda item: item[0])
-    K, size, distortion, camera_model = scene_camera(cameras, {c for _, _, c in registered}, model / "cameras.txt")
-    points = read_points3d(model / "points3D.txt")
+    cameras, registered, points, form = read_model(model)
+    registered = sorted(registered, key=lambda item: item[0])
+    cameras_file = model / ("cameras.txt" if form == "text" else "cameras.bin")
+    K, size, distortion, camera_model = scene_camera(cameras, {c for _, _, c in registered}, cameras_file)
     files = [name for name, _, _ in registered]
     names = frame_names(files)
     stamps = order_timestamps(len(files), frame_interval)
     frames = [frame_of(names[k], stamps[k], w2c, f"images.txt pose of {name}", model / "images.txt",
                        {"source_file": name}) for k, (name, w2c, _) in enumerate(registered)]
     camera, read_image = image_reader([image_dir / f for f in files], K, distortion, size)
-    source = {"dataset": "colmap", "path": str(model.resolve()), "images_path": str(image_dir.resolve()),
+    source = {"dataset": "colmap", "path": str(model.resolve()), "model": form, "images_path": str(image_dir.resolve()),
               "radar": "absent", "camera_model": camera_model,
               "images": "undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0)" if distortion else "copied",
               "timestamps": "the images' order (sorted by name), --frame-interval seconds apart",
@@ -188,9 +270,9 @@ def convert_colmap(src: str | Path, out: str | Path, images: str | Path | None =
 
 @dataclass
 class ConvertColmapCommand:
-    """Convert a COLMAP text model (cameras, images, points3D) and its images into a radar-less scene folder."""
+    """Convert a COLMAP model (cameras, images, points3D) and its images into a radar-less scene folder."""
 
-    # The COLMAP project folder (with sparse/0 and images/) or the text model folder itself.
+    # The COLMAP project folder (with sparse/0 and images/) or the model folder itself (text or binary).
     src: tyro.conf.Positional[Path]
     # The scene folder to write.
     out: tyro.conf.Positional[Path]
