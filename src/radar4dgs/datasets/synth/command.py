@@ -28,6 +28,9 @@ class SynthCommand:
     # Overwrite OUT if it exists. Without it, OUT holding this very scene (same preset, seed and config) is
     # left as it is, and anything else there is refused with what differs.
     force: bool = False
+    # Also write gt/background/<frame>.png: every frame without its moving objects (same world, camera and
+    # noise; parked cars stay), the ground truth of the static scene under removed actors.
+    background: bool = False
     scene: SynthConfig = field(default_factory=SynthConfig)  # every generator option; defaults from --preset
 
     PRESET_FIELDS = {"scene": SynthConfig}
@@ -42,12 +45,20 @@ class SynthCommand:
                 raise FileExistsError(f"{self.out}: already exists ({difference}); pass --force to overwrite it")
             print(f"{self.out}: holds this scene already (same preset, seed and config); left as it is "
                   f"(--force makes it again)")
+            self._background()
             return 0
         start = time.perf_counter()
         out = synthesize(config, self.out, overwrite=self.force, preset=self.preset)
         print(f"wrote {out}: {config.num_frames} frames {config.width}x{config.height}, preset {self.preset}, "
               f"seed {config.seed}, traffic {self.traffic}, {time.perf_counter() - start:.1f} s")
+        self._background()
         return 0
+
+    def _background(self) -> None:
+        if self.background:
+            from radar4dgs.datasets.synth.background import write_backgrounds
+
+            print(f"wrote {write_backgrounds(self.out)}: every frame without its moving objects")
 
 
 def existing_scene_difference(out: Path, config: SynthConfig, preset: str) -> str | None:
