@@ -83,6 +83,48 @@ def test_prepare_train_static_and_eval_without_radar(radarless, tmp_path, capsys
                                                f"'radar' section), which this step needs")
 
 
+def test_a_monocular_prior_is_scaled_by_the_points_in_place_of_the_radar(radarless, tiny_trained_run, tmp_path):
+    import shutil
+
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.config import preset
+
+    original = read_scene(tiny_trained_run / "scene")
+    dense = tmp_path / "dense"
+    shutil.copytree(radarless, dense, ignore=shutil.ignore_patterns("prepared"))
+    # A relative inverse-depth prior with an unknown scale and shift: 1/z = x / 0.7 - 0.01 / 0.7.
+    (dense / "priors" / "mono_depth").mkdir()
+    for i, frame in enumerate(original.frames):
+        z = original.load_optional("gt/depth", i)
+        np.save(dense / "priors" / "mono_depth" / f"{frame.name}.npy",
+                np.where(np.isfinite(z), 0.7 / z + 0.01, 0.01).astype(np.float32))
+    assert run_prepare(dense, None, preset(PrepareConfig, "tiny"), only=("radar", "depth"), progress=False) == \
+        {"radar": "ran", "depth": "ran"}
+    summary = json.loads((dense / "prepared" / "depth" / "summary.json").read_text())
+    assert (summary["source"], summary["method"], summary["fallbacks"]) == ("prior", "affine", [])
+    assert summary["anchors"] == "the scene's point cloud (the scene has no radar)"
+    assert summary["sky_sources"] == ["fallback"]
+    scene = read_scene(dense)
+    world, _ = scene.load_points()
+    for i, frame in enumerate(scene.frames):
+        depth = np.load(dense / "prepared" / "depth" / f"{frame.name}.npy")
+        # Dense: every pixel has a depth or is sky; the fit agrees with the points it was given ...
+        assert np.isfinite(depth).mean() > 0.5 and not np.isnan(depth).any()
+        w2c = scene.world_to_camera(i)
+        at = point_depth(world @ w2c[:3, :3].T + w2c[:3, 3], scene.camera.K, scene.camera.height,
+                         scene.camera.width, 1e-6, 1000.0)
+        known = np.isfinite(at) & np.isfinite(depth)
+        ratio = depth[known] / at[known] - 1  # unbiased, within the points' own noise (~2 % here)
+        assert abs(np.median(ratio)) < 0.01 and np.median(np.abs(ratio)) < 0.03
+        # ... and with the ground truth to the points' own accuracy (they came from prepared depth);
+        # the sky comes from the fallback detector.
+        gt = original.load_optional("gt/depth", i)
+        both = np.isfinite(gt) & np.isfinite(depth)
+        assert np.median(np.abs(depth[both] / gt[both] - 1)) < 0.03
+        sky, gt_sky = ~np.isfinite(depth), original.load_optional("gt/sky_mask", i)
+        assert (sky & gt_sky).sum() / (sky | gt_sky).sum() > 0.99
+
+
 def test_without_points_either_the_depth_stage_refuses(radarless, tmp_path, capsys):
     import shutil
 

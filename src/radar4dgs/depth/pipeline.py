@@ -175,7 +175,8 @@ def render_frame(x: np.ndarray, image: np.ndarray | None, parameters: FrameParam
 
 def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.ndarray], method: str,
                static_masks: Sequence[np.ndarray | None] | None = None, radar_dir: str | Path | None = None,
-               progress: bool | Callable = False, index: DirectionIndex | None = None, flat_world: Any = None
+               progress: bool | Callable = False, index: DirectionIndex | None = None, flat_world: Any = None,
+               anchors: Callable[[int], tuple[np.ndarray, np.ndarray, str]] | None = None
                ) -> tuple[list[FrameFit], list[FrameParameters], dict]:
     """Scale recovery on every frame, then the neighbour fallback.
 
@@ -188,6 +189,8 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
             source: radar points on its wall are not paired (the wall is a stand-in, counted as
             "sky"), fits that correct it by more than ``config.flat_world_max_correction`` are
             rejected, and with no fit in any frame it is used unscaled instead of failing.
+        anchors: frame index -> ((N, 3) metric camera-frame points, (N,) bool static, source):
+            the points to fit instead of the radar's (a radar-less scene's point cloud).
 
     Returns:
         fits, per-frame parameters and info (static-mask sources, timings).
@@ -202,14 +205,17 @@ def fit_frames(scene, config: DepthConfig, inverse_depth: Callable[[int], np.nda
     use_sky_prior = uses_sky_prior(scene, config)
     for i in _progress(range(len(scene)), progress, "depth: scale recovery"):
         x = inverse_depth(i)
-        scan = scene.load_radar(i)
-        given = static_masks[i] if static_masks is not None else None
-        if given is not None:
-            static, source = np.asarray(given, bool), "given"
+        if anchors is not None:
+            points, static, source = anchors(i)
         else:
-            static, source = static_mask(scene, i, len(scan), radar_dir, scan)
+            scan = scene.load_radar(i)
+            given = static_masks[i] if static_masks is not None else None
+            if given is not None:
+                static, source = np.asarray(given, bool), "given"
+            else:
+                static, source = static_mask(scene, i, len(scan), radar_dir, scan)
+            points = transform_points(scene.radar_to_camera(i), scan.xyz)
         info["static_sources"].append(source)
-        points = transform_points(scene.radar_to_camera(i), scan.xyz)
         sky = sky_prior(scene, i, config, use_sky_prior)
         if flat_world is not None:
             sky = flat_world.wall if sky is None else (sky | flat_world.wall)
@@ -312,17 +318,21 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
     not atomic: for a caller that already writes into a temporary folder, as the ``prepare``
     stages do). Same outputs and arguments as :func:`prepare_depth`; ``radar_dir`` is the radar
     stage's folder with the static/dynamic flags (``<prepared>/radar``), or None. A scene without
-    radar gets the sparse depth of its point cloud instead (:mod:`radar4dgs.depth.points`).
+    radar fits its point cloud instead of the radar when it has a monocular prior or network, else
+    it gets the sparse depth of its point cloud (:mod:`radar4dgs.depth.points`).
     """
-    config = config or DepthConfig()
-    if not scene.has_radar:
-        from radar4dgs.depth.points import write_point_depth
+    from radar4dgs.depth.points import point_anchors, write_point_depth
 
+    config = config or DepthConfig()
+    if not scene.has_radar and (not scene.has_points or resolve_source(scene, config) == "flat-world"):
         return write_point_depth(scene, depth_dir, sky_dir, config, progress)
     depth_dir, sky_dir = Path(depth_dir), Path(sky_dir)
     depth_dir.mkdir(parents=True, exist_ok=True)
     sky_dir.mkdir(parents=True, exist_ok=True)
     source, model = resolve_model(scene, config, device, model)
+    if not scene.has_radar and source == "flat-world":  # the network failed to load
+        return write_point_depth(scene, depth_dir, sky_dir, config, progress)
+    anchors = None if scene.has_radar else point_anchors(scene, config)
     if source == "oracle":
         warnings.warn("depth: source 'oracle' reads gt/depth: an ablation, not a result", DepthWarning, stacklevel=2)
     kind = config.resolved_kind(source, "metric" if getattr(model, "kind", "") == "depth" else None)
@@ -339,7 +349,7 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
         return x
 
     fits, parameters, info = fit_frames(scene, config, inverse_depth, method, static_masks, radar_dir, progress,
-                                        flat_world=model if source == "flat-world" else None)
+                                        flat_world=model if source == "flat-world" else None, anchors=anchors)
     frame_conf = frame_confidences(fits, parameters, config)
     entries = []
     use_sky_prior = uses_sky_prior(scene, config)
@@ -374,6 +384,8 @@ def write_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: Depth
                    "scale_recovery_max_s": round(float(times.max()), 5)},
         "frames": entries,
     }
+    if anchors is not None:
+        summary["anchors"] = "the scene's point cloud (the scene has no radar)"
     atomic_write_json(depth_dir / "summary.json", summary)
     save_config(config, depth_dir / "config.json")
     return summary

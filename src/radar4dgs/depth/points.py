@@ -1,6 +1,11 @@
-"""The depth stage of a radar-less scene (``convert nerfstudio`` / ``convert colmap``): sparse
-metric depth from the scene's point cloud (``priors/points3d.npy``) instead of a monocular prior
-scaled by radar.
+"""The depth stage of a radar-less scene (``convert nerfstudio`` / ``convert colmap``): its point
+cloud (``priors/points3d.npy``) stands in for the radar.
+
+With a monocular prior (``priors/mono_depth``, or Depth-Anything-V2 weights on this machine) the
+prior is scaled as with radar, the visible points (:func:`point_anchors`) taking the radar
+points' place: dense depth, confidence and the fallback sky detector as usual. Without one (the
+flat-world prior needs the ground under the ego origin, which a camera-only scene does not have)
+the depth is the points' own, sparse:
 
 Each frame's depth map holds, at the pixel each point projects to, the z-depth of the nearest
 point there, and NaN elsewhere (unknown: no depth loss there, no initial Gaussian). A point is
@@ -10,7 +15,9 @@ side). The depth is in the units of the source's poses (metres only when they ar
 ``priors/sky_mask`` when the scene has it (``sky_source`` auto or prior), else there is none: the
 weight-free sky detector needs a dense depth prior. Outputs as :func:`radar4dgs.depth.pipeline.write_depth`:
 ``<frame>.npy`` (NaN unknown, +inf sky), ``<frame>_confidence.npy`` (1 at points, else 0),
-``sky/<frame>.png`` and ``summary.json`` with ``"source": "points"``.
+``sky/<frame>.png`` and ``summary.json`` with ``"source": "points"``. The radar's near limit
+``min_depth`` does not apply to the points (a COLMAP world may be in any unit): any point in
+front of the camera and within ``max_depth`` counts.
 """
 
 from __future__ import annotations
@@ -54,6 +61,28 @@ def point_depth(points_camera: np.ndarray, K: np.ndarray, height: int, width: in
     return depth.astype(np.float32)
 
 
+def visible_points(scene, world: np.ndarray, index: int, max_depth: float) -> np.ndarray:
+    """(H, W) :func:`point_depth` of the (M, 3) ``world`` points in frame ``index``."""
+    w2c = scene.world_to_camera(index)
+    camera = scene.camera
+    return point_depth(world @ w2c[:3, :3].T + w2c[:3, 3], camera.K, camera.height, camera.width, 1e-6, max_depth)
+
+
+def point_anchors(scene, config: DepthConfig) -> Callable[[int], tuple[np.ndarray, np.ndarray, str]]:
+    """For :func:`radar4dgs.depth.pipeline.fit_frames`: frame index -> the scene's visible points
+    ((N, 3) camera frame, at the centres of the pixels they fall on), all static, "point cloud"."""
+    world, _ = scene.load_points()
+    K_inv = np.linalg.inv(scene.camera.K)
+
+    def anchors(index: int) -> tuple[np.ndarray, np.ndarray, str]:
+        depth = visible_points(scene, world, index, config.max_depth)
+        v, u = np.nonzero(np.isfinite(depth))
+        rays = K_inv @ np.stack([u, v, np.ones(len(u))]).astype(np.float64)
+        return (rays * depth[v, u]).T, np.ones(len(u), bool), "point cloud"
+
+    return anchors
+
+
 def write_point_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config: DepthConfig | None = None,
                       progress: bool | Callable = False) -> dict:
     """Write the sparse depth, confidence and sky of every frame of the radar-less ``scene`` into
@@ -69,14 +98,11 @@ def write_point_depth(scene, depth_dir: str | Path, sky_dir: str | Path, config:
     depth_dir.mkdir(parents=True, exist_ok=True)
     sky_dir.mkdir(parents=True, exist_ok=True)
     world, _ = scene.load_points()
-    camera = scene.camera
     use_sky_prior = uses_sky_prior(scene, config) if config.sky_source != "none" else False
     entries = []
     for i in _progress(range(len(scene)), progress, "depth: points"):
         name = scene.frames[i].name
-        w2c = scene.world_to_camera(i)
-        depth = point_depth(world @ w2c[:3, :3].T + w2c[:3, 3], camera.K, camera.height, camera.width,
-                            config.min_depth, config.max_depth)
+        depth = visible_points(scene, world, i, config.max_depth)
         sky = sky_prior(scene, i, config, use_sky_prior)
         if sky is None:
             sky = np.zeros(depth.shape, bool)
