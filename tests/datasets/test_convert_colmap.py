@@ -160,6 +160,24 @@ def test_opencv_distortion_is_undistorted_where_a_point_lands(tmp_path):
     assert np.linalg.norm(found - uv[0]) < 0.75
 
 
+def test_fisheye_is_undistorted_where_a_point_lands(tmp_path):
+    k1, k2, k3, k4 = 0.08, -0.02, 0.004, -0.001
+    root = _model(tmp_path / "p", f"OPENCV_FISHEYE {W} {H} 30.0 30.0 32.0 24.0 {k1} {k2} {k3} {k4}")
+    K_raw = np.array([[30.0, 0, 31.5], [0, 30.0, 23.5], [0, 0, 1]])
+    D = np.array([[k1], [k2], [k3], [k4]])
+    point_cam = np.array([[[-1.5, 0.9, 4.0]]])
+    raw_uv = cv2.fisheye.projectPoints(point_cam, np.zeros(3), np.zeros(3), K_raw, D)[0][0, 0]
+    image = np.zeros((H, W, 3), np.uint8)
+    cv2.circle(image, (int(round(raw_uv[0])), int(round(raw_uv[1]))), 1, (255, 255, 255), -1)
+    Image.fromarray(image).save(root / "images" / "a.png")
+    scene = read_scene(convert_colmap(root, tmp_path / "scene", progress=False))
+    assert scene.source["images"] == "undistorted (OpenCV fisheye, balance 0)"
+    out = scene.load_image(0).astype(float)[..., 0]
+    found = np.array([(out * np.arange(W)).sum(), (out.T * np.arange(H)).sum()]) / out.sum()
+    uv, _ = scene.camera.project(point_cam[0])
+    assert np.linalg.norm(found - uv[0]) < 0.75
+
+
 def test_user_errors_are_one_line(tmp_path, capsys):
     def refused(src: Path) -> str:
         assert main(["convert", "colmap", str(src), str(tmp_path / "out"), "--quiet"]) == 1
@@ -169,10 +187,10 @@ def test_user_errors_are_one_line(tmp_path, capsys):
         return err
 
     assert refused(tmp_path / "nowhere").endswith("nowhere: missing folder (a COLMAP project or model)")
-    fisheye = _model(tmp_path / "f", f"OPENCV_FISHEYE {W} {H} 50 50 32 24 0.1 0 0 0")
-    assert refused(fisheye).endswith("sparse/0/cameras.txt: camera model OPENCV_FISHEYE is not supported "
-                                     "(SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV); undistort "
-                                     "the images first (`colmap image_undistorter`)")
+    fov = _model(tmp_path / "f", f"FOV {W} {H} 50 50 32 24 0.1")
+    assert refused(fov).endswith("sparse/0/cameras.txt: camera model FOV is not supported (SIMPLE_PINHOLE, PINHOLE, "
+                                 "SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, "
+                                 "RADIAL_FISHEYE); undistort the images first (`colmap image_undistorter`)")
     short = _model(tmp_path / "s", f"PINHOLE {W} {H} 50 50 32")
     assert refused(short).endswith("cameras.txt: camera model PINHOLE has 4 parameters, got 3")
     (tmp_path / "n" / "sparse" / "0").mkdir(parents=True)

@@ -137,6 +137,19 @@ def test_distorted_images_are_undistorted_with_opencv(tmp_path):
     assert scene.image_files[0].suffix == ".png" and "undistorted" in scene.source["images"]
 
 
+def test_fisheye_images_are_undistorted_with_opencvs_fisheye_model(tmp_path):
+    root = _dataset(tmp_path / "ns")
+    meta = json.loads((root / "transforms.json").read_text())
+    meta.update(camera_model="OPENCV_FISHEYE", k1=0.05, k2=-0.01, k3=0.002, k4=-0.001)
+    (root / "transforms.json").write_text(json.dumps(meta))
+    scene = read_scene(convert_nerfstudio(root, tmp_path / "scene", progress=False))
+    K_raw = np.array([[40.0, 0, 31.5], [0, 41.0, 23.5], [0, 0, 1]])
+    D = np.array([[0.05], [-0.01], [0.002], [-0.001]])
+    expected = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K_raw, D, (W, H), np.eye(3), balance=0.0)
+    np.testing.assert_allclose(scene.camera.K, expected, atol=1e-9)
+    assert scene.source["images"] == "undistorted (OpenCV fisheye, balance 0)"
+
+
 def test_binary_ply_with_extra_properties(tmp_path):
     rows = np.zeros(2, dtype=[("x", ">f8"), ("y", ">f8"), ("z", ">f8"), ("nx", ">f4"), ("red", "u1"),
                               ("green", "u1"), ("blue", "u1"), ("alpha", "u1")])
@@ -168,11 +181,14 @@ def test_user_errors_are_one_line(tmp_path, capsys):
     (root / "transforms.json").write_text(json.dumps(meta))
     assert "transforms.json: the frames have 2 different cameras; the scene format has one" in refused(root)
     meta["frames"][1]["fl_x"] = 40.0
-    meta.update(camera_model="OPENCV_FISHEYE", k1=0.1)
+    meta.update(camera_model="EQUIRECTANGULAR")
     (root / "transforms.json").write_text(json.dumps(meta))
-    assert "camera_model OPENCV_FISHEYE with distortion [0.1, 0.0, 0.0, 0.0, 0.0, 0.0] is not converted" \
-        in refused(root)
-    meta.update(camera_model="OPENCV", k1=0.0)
+    assert "camera_model EQUIRECTANGULAR with distortion [0.0, 0.0, 0.0, 0.0, 0.0, 0.0] is not converted (PINHOLE, " \
+           "OPENCV and OPENCV_FISHEYE are)" in refused(root)
+    meta.update(camera_model="OPENCV", k4=0.1)
+    (root / "transforms.json").write_text(json.dumps(meta))
+    assert "camera_model OPENCV with distortion [0.0, 0.0, 0.0, 0.0, 0.0, 0.1] is not converted" in refused(root)
+    meta.update(k4=0.0)
     meta["frames"][0]["time"] = 0.25
     (root / "transforms.json").write_text(json.dumps(meta))
     assert "frames[0] and frames[2] have the same time 0.25" in refused(root)

@@ -17,6 +17,7 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 from PIL import Image
 from tqdm import tqdm
@@ -124,15 +125,29 @@ def read_ply_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return xyz, np.clip(rgb, 0.0, 1.0)
 
 
+def fisheye_rectifier(K: np.ndarray, distortion: Sequence[float], size: tuple[int, int]) -> ImageRectifier:
+    """An :class:`ImageRectifier` for OpenCV's fisheye model (``distortion`` k1..k4): to the
+    pinhole matrix of ``cv2.fisheye.estimateNewCameraMatrixForUndistortRectify`` with balance 0
+    (every output pixel valid), the same size."""
+    K = np.asarray(K, dtype=np.float64)
+    D = np.zeros((4, 1))
+    D[:len(distortion), 0] = distortion[:4]
+    K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, tuple(size), np.eye(3), balance=0.0)
+    maps = cv2.fisheye.initUndistortRectifyMap(K, D, np.eye(3), K_new, tuple(size), cv2.CV_32FC1)
+    return ImageRectifier(tuple(size), tuple(size), K_new, maps)
+
+
 def image_reader(files: Sequence[Path], K: np.ndarray, distortion: Sequence[float] | None,
-                 size: tuple[int, int]) -> tuple[Camera, Any]:
+                 size: tuple[int, int], fisheye: bool = False) -> tuple[Camera, Any]:
     """The scene camera of images ``files`` with intrinsics ``K`` (scene convention) and OpenCV
-    ``distortion`` (k1, k2, p1, p2[, k3, ...]) at ``size`` (width, height), and a function
-    ``index -> image`` for :meth:`SceneWriter.add_frame`: the file itself when it is an
-    undistorted PNG/JPEG (copied), else the OpenCV-undistorted RGB array (every output pixel
-    valid, ``getOptimalNewCameraMatrix`` alpha 0)."""
+    ``distortion`` (k1, k2, p1, p2[, k3, ...]; with ``fisheye`` OpenCV's fisheye k1..k4) at
+    ``size`` (width, height), and a function ``index -> image`` for :meth:`SceneWriter.add_frame`:
+    the file itself when it is an undistorted PNG/JPEG (copied), else the OpenCV-undistorted RGB
+    array (every output pixel valid: ``getOptimalNewCameraMatrix`` alpha 0, fisheye balance 0)."""
     undistort = distortion is not None and any(float(d) != 0.0 for d in distortion)
-    rectifier = ImageRectifier.build(K, distortion, size) if undistort else None
+    rectifier = None
+    if undistort:
+        rectifier = fisheye_rectifier(K, distortion, size) if fisheye else ImageRectifier.build(K, distortion, size)
     camera = Camera(int(size[0]), int(size[1]), rectifier.K if rectifier else np.asarray(K, np.float64),
                     CAM_TO_EGO.copy())
 

@@ -6,9 +6,10 @@ The model is ``SRC`` itself when it holds ``cameras.txt`` or ``cameras.bin``, el
 or ``SRC/sparse`` (the text files when both forms are there);
 the images are ``--images``, else ``SRC/images`` or the ``images`` folder beside ``sparse/``.
 Camera models: SIMPLE_PINHOLE and PINHOLE as they are; SIMPLE_RADIAL, RADIAL, OPENCV and
-FULL_OPENCV undistorted with OpenCV (same coefficients, ``getOptimalNewCameraMatrix`` alpha 0);
-any other model is refused. Every registered image must use the same camera (the scene format
-has one). ``images.txt`` holds the world-to-camera pose in OpenCV axes, which is the scene's
+FULL_OPENCV undistorted with OpenCV (same coefficients, ``getOptimalNewCameraMatrix`` alpha 0),
+OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE and RADIAL_FISHEYE with ``cv2.fisheye`` (balance 0); any
+other model (FOV, THIN_PRISM_FISHEYE) is refused. Every registered image must use the same
+camera (the scene format has one). ``images.txt`` holds the world-to-camera pose in OpenCV axes, which is the scene's
 ``world_to_camera``. ``points3D.txt`` becomes ``priors/points3d.npy``.
 
 Timestamps: COLMAP has none; frames are ordered by image name (as gsplat's and nerfstudio's
@@ -46,7 +47,12 @@ CAMERA_MODELS = {
     "RADIAL": (5, lambda p: (p[0], p[0], p[1], p[2]), lambda p: [p[3], p[4], 0.0, 0.0]),
     "OPENCV": (8, lambda p: tuple(p[:4]), lambda p: list(p[4:8])),
     "FULL_OPENCV": (12, lambda p: tuple(p[:4]), lambda p: list(p[4:12])),
+    # OpenCV's fisheye model (cv2.fisheye): k1..k4.
+    "OPENCV_FISHEYE": (8, lambda p: tuple(p[:4]), lambda p: list(p[4:8])),
+    "SIMPLE_RADIAL_FISHEYE": (4, lambda p: (p[0], p[0], p[1], p[2]), lambda p: [p[3], 0.0, 0.0, 0.0]),
+    "RADIAL_FISHEYE": (5, lambda p: (p[0], p[0], p[1], p[2]), lambda p: [p[3], p[4], 0.0, 0.0]),
 }
+FISHEYE_MODELS = ("OPENCV_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE")
 
 
 def _data_lines(path: Path) -> list[str]:
@@ -258,10 +264,12 @@ def convert_colmap(src: str | Path, out: str | Path, images: str | Path | None =
     stamps = order_timestamps(len(files), frame_interval)
     frames = [frame_of(names[k], stamps[k], w2c, f"images.txt pose of {name}", model / "images.txt",
                        {"source_file": name}) for k, (name, w2c, _) in enumerate(registered)]
-    camera, read_image = image_reader([image_dir / f for f in files], K, distortion, size)
+    camera, read_image = image_reader([image_dir / f for f in files], K, distortion, size,
+                                      camera_model in FISHEYE_MODELS)
     source = {"dataset": "colmap", "path": str(model.resolve()), "model": form, "images_path": str(image_dir.resolve()),
               "radar": "absent", "camera_model": camera_model,
-              "images": "undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0)" if distortion else "copied",
+              "images": ("undistorted (OpenCV fisheye, balance 0)" if camera_model in FISHEYE_MODELS else
+                         "undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0)") if distortion else "copied",
               "timestamps": "the images' order (sorted by name), --frame-interval seconds apart",
               "points": int(len(points[0]))}
     return write_radarless_scene(out, f"colmap-{src.name}", camera, frames, read_image, points, source, test_every,

@@ -2,9 +2,9 @@
 scene folder (docs/data/scene-format.md, docs/data/converters.md).
 
 Read: the intrinsics (``fl_x fl_y cx cy w h``, shared at the top level or per frame, which must
-then agree: the scene format has one camera), ``camera_model`` (PINHOLE, or OPENCV with ``k1 k2
-p1 p2 [k3]``: images with non-zero distortion are undistorted with OpenCV; OPENCV_FISHEYE with
-distortion is refused), per frame ``file_path`` and the OpenGL camera-to-world
+then agree: the scene format has one camera), ``camera_model`` (PINHOLE, OPENCV with ``k1 k2
+p1 p2 [k3]`` or OPENCV_FISHEYE with ``k1 k2 k3 k4``: images with non-zero distortion are
+undistorted with OpenCV, to a pinhole camera), per frame ``file_path`` and the OpenGL camera-to-world
 ``transform_matrix``, an optional ``time``, the ``train_filenames`` / ``test_filenames`` split,
 ``ply_file_path`` (the initial point cloud, to ``priors/points3d.npy``) and ``applied_transform``
 / ``applied_scale`` (kept in ``source``; ``--world original`` undoes them).
@@ -92,11 +92,11 @@ def one_camera(meta: Mapping[str, Any], path: Path) -> tuple[np.ndarray, tuple[i
     distorted = any((k1, k2, p1, p2, k3, k4))
     if model in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE") and not k4:
         distortion = [k1, k2, p1, p2, k3] if distorted else None
-    elif model == "OPENCV_FISHEYE" and not distorted:
-        distortion = None
+    elif model == "OPENCV_FISHEYE" and not (p1 or p2):
+        distortion = [k1, k2, k3, k4] if distorted else None
     else:
         raise SceneError(path, f"camera_model {model} with distortion {[k1, k2, p1, p2, k3, k4]} is not "
-                               f"converted (PINHOLE and OPENCV are); undistort the images first")
+                               f"converted (PINHOLE, OPENCV and OPENCV_FISHEYE are); undistort the images first")
     return pinhole_K(fx, fy, cx, cy), size, distortion, model
 
 
@@ -175,10 +175,11 @@ def convert_nerfstudio(src: str | Path, out: str | Path, frame_interval: float =
     if meta.get("ply_file_path"):
         xyz, rgb = read_ply_points(root / str(meta["ply_file_path"]))
         points = (xyz @ to_world[:3, :3].T + to_world[:3, 3], rgb)
-    camera, read_image = image_reader([root / f for f in files], K, distortion, size)
+    camera, read_image = image_reader([root / f for f in files], K, distortion, size, model == "OPENCV_FISHEYE")
     every, split = split_of(meta, files, test_every, path)
     source = {"dataset": "nerfstudio", "path": str(path.resolve()), "radar": "absent", "camera_model": model,
-              "images": "undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0)" if distortion else "copied",
+              "images": ("undistorted (OpenCV fisheye, balance 0)" if model == "OPENCV_FISHEYE" else
+                         "undistorted (OpenCV, getOptimalNewCameraMatrix alpha=0)") if distortion else "copied",
               "timestamps": timing, "split": split, "points": 0 if points is None else int(len(points[0])),
               "world": "transforms.json's" if world == "transforms" else "original (applied_transform undone)",
               "applied_transform": applied(meta).tolist()}
