@@ -134,3 +134,18 @@ def test_without_points_either_the_depth_stage_refuses(radarless, tmp_path, caps
     assert capsys.readouterr().err.strip() == (
         f"radar4dgs prepare: {bare}: has no radar and no point cloud (priors/points3d.npy): the depth stage "
         "needs one of them to make the depth metric")
+
+
+def test_inspect_summarises_a_camera_only_scene(radarless, tmp_path, capsys):
+    sheet = tmp_path / "sheet.png"
+    assert main(["inspect", str(radarless), "--sheet", str(sheet), "--json", str(tmp_path / "s.json"),
+                 "--frames", "3"]) == 0
+    assert "radar      none (a camera-only scene)" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["radar_fields"] is None and summary["radar_points_per_frame"] is None
+    assert summary["frames"] == len(read_scene(radarless))
+    import cv2
+
+    image = cv2.imread(str(sheet))
+    # Two columns of 480-px tiles over the legend: the frames themselves, no radar dots.
+    assert image.shape[1] == 960 and image.shape[0] > 28

@@ -36,7 +36,7 @@ def summarize_scene(scene: Scene) -> dict[str, Any]:
     """A JSON-ready summary: frames, duration, size, radar counts, speeds, split, optional folders."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SceneWarning)
-        counts = np.array([len(scene.load_radar(i)) for i in range(len(scene))])
+        counts = np.array([len(scene.load_radar(i)) for i in range(len(scene))]) if scene.has_radar else None
     speeds = pose_speeds(scene)
     velocities = [f.ego_velocity for f in scene.frames if f.ego_velocity is not None]
     summary: dict[str, Any] = {
@@ -47,9 +47,11 @@ def summarize_scene(scene: Scene) -> dict[str, Any]:
         "duration_s": round(scene.duration, 4),
         "frame_rate_hz": round((len(scene) - 1) / scene.duration, 3) if scene.duration > 0 else None,
         "image_size": [scene.camera.width, scene.camera.height],
-        "radar_fields": list(scene.radar.fields),
-        "radar_points_per_frame": {"min": int(counts.min()), "median": float(np.median(counts)),
-                                   "max": int(counts.max()), "total": int(counts.sum())},
+        # None for a camera-only scene (convert nerfstudio / colmap).
+        "radar_fields": list(scene.radar.fields) if counts is not None else None,
+        "radar_points_per_frame": None if counts is None else {
+            "min": int(counts.min()), "median": float(np.median(counts)), "max": int(counts.max()),
+            "total": int(counts.sum())},
         "ego_speed_from_poses_mps": ({"mean": round(float(speeds.mean()), 3), "min": round(float(speeds.min()), 3),
                                       "max": round(float(speeds.max()), 3)} if len(speeds) else None),
         "ego_speed_from_ego_velocity_mps": (round(float(np.mean([np.linalg.norm(v) for v in velocities])), 3)
@@ -90,8 +92,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"frames     {summary['frames']} over {summary['duration_s']:.2f} s"
         + (f" ({summary['frame_rate_hz']:.2f} Hz)" if summary["frame_rate_hz"] else ""),
         f"image      {summary['image_size'][0]}x{summary['image_size'][1]}",
-        f"radar      {', '.join(summary['radar_fields'])}; points per frame min {radar['min']} / "
-        f"median {radar['median']:.0f} / max {radar['max']}",
+        (f"radar      {', '.join(summary['radar_fields'])}; points per frame min {radar['min']} / "
+         f"median {radar['median']:.0f} / max {radar['max']}" if radar else "radar      none (a camera-only scene)"),
         "ego speed  " + (f"{speed['mean']:.2f} m/s mean from poses (min {speed['min']:.2f}, max {speed['max']:.2f})"
                          if speed else "n/a (one frame)")
         + (f"; {summary['ego_speed_from_ego_velocity_mps']:.2f} m/s from ego_velocity"
@@ -142,27 +144,41 @@ def contact_sheet(scene: Scene, num_frames: int = 4, tile_width: int = 480,
     tile_height = int(round(scene.camera.height * scale))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
-        scans = [scene.load_radar(int(i)) for i in indices]
+        # A camera-only scene's sheet is its frames without points.
+        scans = [scene.load_radar(int(i)) if scene.has_radar else None for i in indices]
     if v_r_limit is None:
-        all_v = np.concatenate([s.v_r for s in scans]) if scans else np.zeros(0)
+        all_v = np.concatenate([s.v_r for s in scans if s is not None] or [np.zeros(0)])
         v_r_limit = float(np.percentile(np.abs(all_v), 95)) if len(all_v) else 1.0
     tiles = []
     for index, scan in zip(indices, scans, strict=True):
-        image = cv2.resize(scene.load_image(int(index)), (tile_width, tile_height), interpolation=cv2.INTER_AREA)
-        points = radar_points_in_camera(scene, int(index), scan.xyz.astype(np.float64))
-        uv, z = scene.camera.project(points)
-        uv = uv * scale
-        visible = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < tile_width) & (uv[:, 1] >= 0) & (uv[:, 1] < tile_height)
-        # Far points first, so near ones are drawn on top.
-        order = np.argsort(-z[visible])
-        tile = draw_radar_overlay(image, uv[visible][order], doppler_colors(scan.v_r[visible][order], v_r_limit),
-                                  radius=max(2, tile_width // 160))
+        tile = cv2.resize(scene.load_image(int(index)), (tile_width, tile_height), interpolation=cv2.INTER_AREA)
+        if scan is not None:
+            tile, visible = _overlay_scan(scene, int(index), scan, tile, scale, v_r_limit)
         label = (f"{scene.frames[int(index)].name}"
                  f"  t={scene.frames[int(index)].timestamp - scene.frames[0].timestamp:.2f}s"
-                 f"  {int(visible.sum())}/{len(scan)} radar pts")
+                 + (f"  {visible}/{len(scan)} radar pts" if scan is not None else ""))
         cv2.rectangle(tile, (0, 0), (tile_width, 22), (0, 0, 0), -1)
         cv2.putText(tile, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
         tiles.append(tile)
+    return _grid_with_legend(tiles, tile_width, tile_height, v_r_limit)
+
+
+def _overlay_scan(scene: Scene, index: int, scan, tile: np.ndarray, scale: float,
+                  v_r_limit: float) -> tuple[np.ndarray, int]:
+    """``tile`` (H, W, 3) with frame ``index``'s radar points drawn, and how many were in view."""
+    tile_height, tile_width = tile.shape[:2]
+    uv, z = scene.camera.project(radar_points_in_camera(scene, index, scan.xyz.astype(np.float64)))
+    uv = uv * scale
+    visible = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < tile_width) & (uv[:, 1] >= 0) & (uv[:, 1] < tile_height)
+    # Far points first, so near ones are drawn on top.
+    order = np.argsort(-z[visible])
+    tile = draw_radar_overlay(tile, uv[visible][order], doppler_colors(scan.v_r[visible][order], v_r_limit),
+                              radius=max(2, tile_width // 160))
+    return tile, int(visible.sum())
+
+
+def _grid_with_legend(tiles: list[np.ndarray], tile_width: int, tile_height: int, v_r_limit: float) -> np.ndarray:
+    """The (H, W, 3) tiles in two columns above the Doppler colour legend."""
     columns = 2 if len(tiles) > 1 else 1
     rows = -(-len(tiles) // columns)
     blank = np.zeros((tile_height, tile_width, 3), np.uint8)
