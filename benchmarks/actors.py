@@ -15,7 +15,8 @@ at --preset, prepared, its background render (the generator's same world without
 - on the test frames (every 4th), over the pixels the moving objects cover (gt/dynamic_mask): PSNR
   of the render with every actor removed (the static layer) against the background render, and of
   the unedited render against it (what "not removing" leaves), pooled over the frames;
-- the fraction of those pixels marked "never observed" (``radar4dgs.actors.background``).
+- the fraction of those pixels marked "never observed" (``radar4dgs.actors.background``), and the
+  removed-actor PSNR over the others (where a training frame saw the static surface).
 
 ``--run RUN`` scores an already trained run of a synthetic scene too (its scene needs gt/background,
 written here when missing). Finished runs under --work are reused. Writes the JSON after every scene.
@@ -42,6 +43,7 @@ def build_scene(seed: int, traffic: str, preset_name: str, work: Path) -> Path:
     from radar4dgs.config import preset
     from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
+    from radar4dgs.io.scene import read_scene
 
     scene = work / "scenes" / f"{preset_name}-{traffic}-s{seed}"
     if not (scene / "scene.json").is_file():
@@ -50,7 +52,7 @@ def build_scene(seed: int, traffic: str, preset_name: str, work: Path) -> Path:
     if not (scene / "prepared" / "config.json").is_file():
         run_prepare(scene, scene / "prepared", preset(PrepareConfig, preset_name), progress=False)
     if not (scene / BACKGROUND_DIR).is_dir():
-        write_backgrounds(scene)
+        write_backgrounds(scene, read_scene(scene).test_indices)  # only the test frames are scored
     return scene
 
 
@@ -85,7 +87,7 @@ def background_scores(run, actors) -> dict:
     scene, times = run.scene, normalized_times(run.scene)
     removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
     visibility = training_visibility(run, scale=1.0)
-    sums = {"removed": 0.0, "kept": 0.0}
+    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0}
     count = never = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
@@ -103,8 +105,12 @@ def background_scores(run, actors) -> dict:
             rgb = out["rgb"].clamp(0, 1).double().cpu().numpy()
             sums[key] += float(((rgb - background)[mask] ** 2).sum() / 3)
         count += int(mask.sum())
-        never += int(never_observed_mask(run, view, mask, visibility).sum())
+        unseen = never_observed_mask(run, view, mask, visibility)
+        never += int(unseen.sum())
+        rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
+        sums["observed"] += float(((rgb - background)[mask & ~unseen] ** 2).sum() / 3)
     return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
+            "psnr_removed_observed": psnr(sums["observed"], count - never),
             "pixels": count, "never_observed_fraction": never / count if count else None}
 
 
@@ -118,7 +124,7 @@ def score_run(run_dir: Path) -> dict:
 
     run = load_run(run_dir, "cpu")
     if not (run.scene.root / BACKGROUND_DIR).is_dir():
-        write_backgrounds(run.scene.root)
+        write_backgrounds(run.scene.root, run.scene.test_indices)
     start = time.perf_counter()
     actors = discover_actors(run.model, run.scene, load_radar_objects(run.prepared))
     seconds = time.perf_counter() - start
@@ -130,10 +136,49 @@ def score_run(run_dir: Path) -> dict:
     return result
 
 
+def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float], shift: float,
+                frames: tuple[int, ...]) -> Path:
+    """A picture of edits of one actor: per frame (rows) the unedited render, the actor moved by ``move``
+    (lateral, longitudinal m), the actor ``shift`` seconds later, every actor removed."""
+    import torch
+
+    from radar4dgs.actors.edit import edited_model
+    from radar4dgs.actors.spec import ActorEdits
+    from radar4dgs.actors.store import run_actors
+    from radar4dgs.evaluate.reconstruction import to_uint8
+    from radar4dgs.evaluate.visualize import side_by_side
+    from radar4dgs.io.preview import save_png
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.run import load_run
+    from radar4dgs.model.view import frame_view
+
+    run = load_run(run_dir, "cpu")
+    actors, times = run_actors(run), normalized_times(run.scene)
+    models = [run.model] + [edited_model(run.model, actors, edits, times, run.scene.duration) for edits in (
+        ActorEdits(move={actor: move}), ActorEdits(retime={actor: ("shift", shift)}), ActorEdits(remove_all=True))]
+    labels = ["unedited", f"--move-actor {actor}:{move[0]:g},{move[1]:g}", f"--retime-actor {actor}:{shift:+g}",
+              "--remove-actors all"]
+    rows = []
+    for index in frames:
+        view = frame_view(run.scene, index, 1.0, times)
+        with torch.no_grad():
+            images = [to_uint8(m.render(view, run.config.raster)["rgb"]) for m in models]
+        rows.append(side_by_side(images, [f"{label} (frame {index})" for label in labels]))
+    picture = np.concatenate(rows, axis=0)
+    if Path(out).suffix.lower() in (".jpg", ".jpeg"):  # photographs: a tenth of the PNG's size
+        import cv2
+
+        from radar4dgs.io.atomic import atomic_write_bytes
+
+        ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(picture, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 88])
+        return atomic_write_bytes(out, encoded.tobytes())
+    return save_png(out, picture)
+
+
 def summary(rows: list[dict]) -> dict:
     """Means over scenes of the headline numbers (None entries skipped)."""
     keys = ("recall", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
-            "psnr_kept", "gain_db", "never_observed_fraction")
+            "psnr_kept", "gain_db", "psnr_removed_observed", "never_observed_fraction")
     out = {}
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
@@ -150,7 +195,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-actors-bench"))
     parser.add_argument("--out", type=Path, default=RESULTS / "actors.json")
     parser.add_argument("--run", type=Path, nargs="*", default=[], help="already trained runs to score too")
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="only draw the edit picture of the first --run's actor --figure-actor to this PNG")
+    parser.add_argument("--figure-actor", type=int, default=0)
+    parser.add_argument("--figure-frames", type=int, nargs="*", default=[10, 25, 40])
     args = parser.parse_args(argv)
+    if args.figure is not None:
+        edit_figure(args.run[0], args.figure, args.figure_actor, (-3.5, 0.0), -1.0, tuple(args.figure_frames))
+        return 0
     import torch
 
     torch.set_num_threads(1)

@@ -37,7 +37,7 @@ def draw_actors(actors, static_xy: np.ndarray, ego_xy: np.ndarray, title: str = 
     low, high = extent.min(axis=0) - 15.0, extent.max(axis=0) + 15.0
     inside = np.all((static_xy >= low) & (static_xy <= high), axis=1)
     aspect = (high[1] - low[1]) / max(high[0] - low[0], 1e-6)
-    fig = Figure(figsize=(10, float(np.clip(10 * aspect, 3, 12))), dpi=100)
+    fig = Figure(figsize=(10, float(np.clip(10 * aspect, 4.5, 12))), dpi=100)
     ax = fig.add_subplot()
     ax.scatter(static_xy[inside, 0], static_xy[inside, 1], s=0.3, c="0.7", linewidths=0, rasterized=True)
     ax.plot(ego_xy[:, 0], ego_xy[:, 1], "k--", lw=1.2, label="ego camera")
