@@ -50,6 +50,12 @@ def test_render_with_actors_removed_writes_never_observed_masks(oracle, tmp_path
 
 
 def test_repeated_flags_and_one_line_errors(oracle, tmp_path, capsys):
+    from radar4dgs.cli import build_command
+
+    command = build_command("render", ["RUN", "--remove-actors", "0", "--remove-actors", "1", "--move-actor", "2:1,0",
+                                       "--retime-actor", "2:-0.5", "--retime-actor", "1:2"])
+    assert command.remove_actors == ("0", "1") and command.move_actor == ("2:1,0",)
+    assert command.retime_actor == ("2:-0.5", "1:2")
     edits = parse_edits(["0", "1"], ["2:1,0"], [])  # --remove-actors 0 --remove-actors 1 --move-actor 2:1,0
     result = render_trajectory(oracle.root, "stop-time:3", out=tmp_path / "edit", video=False, progress=False,
                                edits=edits)
