@@ -73,10 +73,13 @@ def load_run(run_dir: str | Path, device: str | None = None) -> Run:
 
 
 def read_refined_poses(path: Path) -> dict[int, np.ndarray]:
-    """Frame index -> corrected (4, 4) world_to_camera from ``RUN/poses.json``."""
+    """Frame index -> corrected (4, 4) world_to_camera from ``RUN/poses.json`` (empty when the run
+    learned only the colour transforms)."""
     try:
-        frames = json.loads(Path(path).read_text(encoding="utf-8"))["frames"]
-        return {int(f["index"]): np.asarray(f["world_to_camera"], dtype=np.float64) for f in frames}
+        payload = json.loads(Path(path).read_text(encoding="utf-8"))
+        if not payload.get("poses_refined", True):
+            return {}
+        return {int(f["index"]): np.asarray(f["world_to_camera"], dtype=np.float64) for f in payload["frames"]}
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: unreadable refined poses ({exc})") from exc
 
