@@ -352,8 +352,8 @@ class TrainConfig:
     threads: int = 0
     # Training frames whose targets (image, depth, sky and dynamic masks, ray directions: about 30
     # bytes a pixel, on the device) stay in memory, the most recently used; the others are read
-    # from disk when drawn (about 5 ms a frame at 160x90 on a CPU). 0 keeps every frame, so memory grows
-    # with the drive. Changes no result (a runtime field, as threads).
+    # from disk when drawn (about 5 ms a frame at 160x90 on a CPU). 0 keeps every frame, so
+    # memory grows with the drive. Changes no result (a runtime field, as threads).
     frame_cache: int = 64
     # Initialisation from the prepared depth.
     init: GaussianInitConfig = dataclasses.field(default_factory=GaussianInitConfig)
