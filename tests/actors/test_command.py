@@ -74,3 +74,9 @@ def test_report_shows_the_actors_picture_beside_it(oracle, tmp_path):
     path = write_report(tmp_path / "report.html", title="t", metrics={"recon": {}, "nvs": {}}, per_frame={},
                         history=[], panels=[])
     assert "<h2>Actors</h2>" in path.read_text()
+
+
+def test_eval_finds_the_actors_and_its_report_shows_them(oracle):
+    assert main(["eval", str(oracle.root), "--no-video", "--no-lpips"]) == 0
+    assert len(json.loads((oracle.root / "actors.json").read_text())["actors"]) == 3
+    assert "<h2>Actors</h2>" in (oracle.root / "report.html").read_text()
