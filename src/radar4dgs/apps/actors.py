@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import tyro
 
 from radar4dgs.actors.config import ActorConfig
+from radar4dgs.apps.options import default_is
 
 
 def actors_table(actors) -> str:
@@ -37,7 +38,7 @@ class ActorsCommand:
     # Find the actors again even when RUN/actors.json is current (same model.pt).
     recompute: bool = False
     # Torch device.
-    device: Optional[str] = None
+    device: Annotated[Optional[str], default_is("the one the run was trained on")] = None
     # Discovery options (used when the actors are found, not when read back from RUN/actors.json).
     actors: ActorConfig = field(default_factory=ActorConfig)
 
