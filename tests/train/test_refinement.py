@@ -113,3 +113,15 @@ def test_a_refined_run_is_evaluated_with_aligned_test_views_and_reported(prepare
     assert all(e["optimisation"]["l1_end"] <= e["optimisation"]["l1_start"] * 1.01 for e in entries)
     report = (tmp_path / "run" / "report.html").read_text()
     assert "Pose and exposure refinement" in report and 'alt="pose corrections"' in report
+
+
+def test_the_mean_correction_and_colour_transform_stay_zero(prepared, tmp_path):
+    """The gauge: moving every camera (or every frame's colours) together changes no training image,
+    so the trainer keeps the mean correction and the mean transform at zero."""
+    scene, prep = prepared
+    config = tiny_config(refine="on", appearance="on", translation_lr=0.01, rotation_lr=0.002)
+    state = train_run(scene, prep, tmp_path / "run", config, progress=False, tensorboard=False)
+    assert float(state.poses.xi.abs().max()) > 1e-3
+    torch.testing.assert_close(state.poses.xi.mean(0), torch.zeros(6), atol=1e-7, rtol=0)
+    torch.testing.assert_close(state.appearance.bias.mean(0), torch.zeros(3), atol=1e-7, rtol=0)
+    torch.testing.assert_close(state.appearance.matrix.mean(0), torch.zeros(3, 3), atol=1e-7, rtol=0)

@@ -322,7 +322,8 @@ def _poses_section(poses: Mapping[str, Any] | None) -> str:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small")
     summary = (poses or {}).get("summary") or {}
-    note = ", ".join(f"{k.replace('_', ' ')} {_fmt(v)}" for k, v in summary.items())
+    note = ", ".join(f"{k.rsplit('_', 1)[0].replace('_', ' ')} {_fmt(v)} {k.rsplit('_', 1)[-1]}"
+                     for k, v in summary.items())
     return ("<h2>Pose and exposure refinement</h2>\n"
             "<p class=\"meta\">Learned per training frame, in camera axes (x right, y down, z forward); "
             f"{_esc(note)}</p>\n<img class=\"plot\" alt=\"pose corrections\" src=\"{_figure_uri(fig)}\">\n")

@@ -43,6 +43,14 @@ class FrameAppearance(nn.Module):
             return rgb
         return affine_colors(rgb, self.matrix[row], self.bias[row])
 
+    @torch.no_grad()
+    def remove_mean(self) -> None:
+        """Subtract the mean transform over the frames: the scene's colours are the average frame's,
+        which test views (identity) render; a common offset in every frame's transform would
+        otherwise leave the Gaussians' colours off by it."""
+        self.matrix -= self.matrix.mean(0)
+        self.bias -= self.bias.mean(0)
+
     def regularizer(self) -> Tensor:
         """Mean squared deviation from the identity (entries of ``matrix`` and ``bias``)."""
         return (self.matrix ** 2).sum((1, 2)).mean() + (self.bias ** 2).sum(1).mean()

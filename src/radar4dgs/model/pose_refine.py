@@ -154,6 +154,14 @@ class PoseCorrections(nn.Module):
         w2c = torch.as_tensor(world_to_camera, dtype=self.translation.dtype, device=self.translation.device)
         return self.delta(row) @ w2c
 
+    @torch.no_grad()
+    def remove_mean(self) -> None:
+        """Subtract the mean correction over the frames (in camera axes; the same axes for a
+        straight drive, a first-order gauge for a turning one): the refined trajectory keeps the
+        recorded one's mean, as moving every camera and the scene together changes no image."""
+        self.translation -= self.translation.mean(0)
+        self.rotation -= self.rotation.mean(0)
+
     def smoothness(self) -> Tensor:
         """Mean squared difference of consecutive rows' corrections (0 for fewer than 2 rows)."""
         xi = self.xi

@@ -405,6 +405,10 @@ class Trainer:
         for name in trainable:
             if name in state.optimizers:
                 state.optimizers[name].step()
+        if config.poses.zero_mean:  # the gauge (PoseRefineConfig.zero_mean)
+            for part in (state.poses if "poses" in trainable else None, state.appearance):
+                if part is not None:
+                    part.remove_mean()
         self._densify(state, render, stage, trainable, generator)
         if step % config.log_every == 0 or step == config.optim.iterations - 1:
             state.history.append({"step": step, "stage": stage, "frame": target.name, "width": target.view.width,
