@@ -162,7 +162,8 @@ class TrainCommand:
     def _provenance(self, out: Path, scene: Path, fresh: bool = False) -> dict[str, Any]:
         """What ``RUN/provenance.json`` records for this call: a resume keeps the preset, method and
         command that started the run, and the changes of earlier resumes (a run killed before its
-        first training call ended has none recorded: the preset is then unknown, null)."""
+        first training call ended has none recorded: the preset and method are then unknown, null;
+        evaluation then names the config's method)."""
         from radar4dgs.apps.reuse import read_json
         from radar4dgs.evaluate.reconstruction import PROVENANCE_FILE
 
@@ -170,9 +171,12 @@ class TrainCommand:
         if earlier and earlier.get("command"):
             return {k: earlier[k] for k in ("preset", "method", "command", "resumed") if k in earlier}
         unknown = self.resume and not fresh and is_run_folder(out)
-        return {"preset": None if unknown else self.preset, "method": self.method,
-                "command": f"radar4dgs train {scene} --out {out}" + ("" if unknown else f" --preset {self.preset}")
-                           + f" --method {self.method} (other options: config.json)"}
+        if unknown:
+            return {"preset": None, "method": None,
+                    "command": f"radar4dgs train {out} --resume (the run's first command was not recorded)"}
+        return {"preset": self.preset, "method": self.method,
+                "command": f"radar4dgs train {scene} --out {out} --preset {self.preset} --method {self.method} "
+                           f"(other options: config.json)"}
 
 
 def is_run_folder(folder: Path) -> bool:
