@@ -167,9 +167,9 @@ def check_one_refused(results: list[subprocess.CompletedProcess], name: str, fol
     codes = sorted(r.returncode for r in results)
     assert codes == [0, 1], [r.stderr for r in results]
     refused = next(r for r in results if r.returncode == 1).stderr
-    # "by pid N since TIME (COMMAND)"; "by another process (lock FILE)" when the winner has not
-    # written who it is yet (the two start together).
-    assert refused.count("\n") == 1 and refused.startswith(f"radar4dgs {name}: {folder} is in use by "), refused
+    # The loser waits for the winner's owner file, so even two commands started together name it.
+    assert refused.count("\n") == 1 and refused.startswith(f"radar4dgs {name}: {folder} is in use by pid "), refused
+    assert " since " in refused, refused
 
 
 def test_two_prepares_on_one_folder_one_runs_the_other_refuses(reference, tiny_trained_run, tmp_path):

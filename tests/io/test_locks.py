@@ -129,3 +129,31 @@ def test_train_removes_what_dead_runs_left(tmp_path, capsys):
     live.write_bytes(b"half")
     assert main(["train", str(tmp_path / "no-scene"), "--out", str(run), "--quiet"]) == 1
     assert not dead.exists() and live.exists()
+
+
+def test_a_lock_just_taken_is_named_by_its_new_owner_not_a_stale_one(tmp_path):
+    """The holder writes its owner file right after it locks; a command refused in between waits
+    for it instead of naming a dead run's stale owner (or nobody)."""
+    import threading
+
+    from filelock import FileLock
+
+    from radar4dgs.io.atomic import atomic_write_json
+
+    folder = tmp_path / "run"
+    lock_file, owner_file = lock_paths(folder)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    atomic_write_json(owner_file, {"pid": dead.pid, "host": HOST, "since": "long ago", "command": "dead"})
+    raw = FileLock(lock_file, timeout=0)
+    raw.acquire()
+    try:
+        late = threading.Timer(0.3, atomic_write_json, (owner_file, {"pid": os.getpid(), "host": HOST,
+                                                                    "since": "now", "command": "live"}))
+        late.start()
+        with pytest.raises(FolderInUseError, match=rf"is in use by pid {os.getpid()} since now \(live\)"):
+            with folder_lock(folder):
+                pass
+        late.join()
+    finally:
+        raw.release()

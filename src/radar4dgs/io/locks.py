@@ -57,6 +57,29 @@ def in_use_message(folder: str | os.PathLike) -> str:
     return f"{folder} is in use by pid {owner['pid']}{where} since {owner.get('since', '?')}{command}"
 
 
+def _owner_alive(owner: dict | None) -> bool:
+    """Whether ``owner`` names a live process (one on another host is taken as alive)."""
+    if owner is None or not isinstance(owner.get("pid"), int):
+        return False
+    if owner.get("host") not in (None, HOST):
+        return True
+    try:
+        os.kill(owner["pid"], 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # alive, another user's
+    return True
+
+
+def _wait_for_live_owner(folder: str | os.PathLike, seconds: float = 1.0) -> None:
+    """Give the holder of a lock just taken time to write its owner file, so the message names it
+    (and not the stale owner of a dead run, or nobody): the holder writes it right after locking."""
+    deadline = time.monotonic() + seconds
+    while not _owner_alive(lock_owner(folder)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike, command: str | None = None) -> Iterator[Path]:
     """Hold ``folder``'s lock for the ``with`` block, or raise :class:`FolderInUseError` at once
@@ -76,6 +99,7 @@ def folder_lock(folder: str | os.PathLike, command: str | None = None) -> Iterat
     try:
         lock.acquire()
     except Timeout:
+        _wait_for_live_owner(folder)
         raise FolderInUseError(in_use_message(folder)) from None
     try:
         if command is None:
