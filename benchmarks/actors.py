@@ -16,7 +16,8 @@ at --preset, prepared, its background render (the generator's same world without
   of the render with every actor removed (the static layer) against the background render, and of
   the unedited render against it (what "not removing" leaves), pooled over the frames;
 - the fraction of those pixels marked "never observed" (``radar4dgs.actors.background``), and the
-  removed-actor PSNR over the others (where a training frame saw the static surface).
+  removed-actor PSNR over the others (where a training frame saw the static surface), and the static
+  layer's PSNR over the pixels no mover covers (the background render equals the frame there).
 
 ``--run RUN`` scores an already trained run of a synthetic scene too (its scene needs gt/background,
 written here when missing). Finished runs under --work are reused. Writes the JSON after every scene.
@@ -87,8 +88,8 @@ def background_scores(run, actors) -> dict:
     scene, times = run.scene, normalized_times(run.scene)
     removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
     visibility = training_visibility(run, scale=1.0)
-    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0}
-    count = never = 0
+    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0, "elsewhere": 0.0}
+    count = never = elsewhere = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
         if not mask.any():
@@ -109,8 +110,12 @@ def background_scores(run, actors) -> dict:
         never += int(unseen.sum())
         rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
         sums["observed"] += float(((rgb - background)[mask & ~unseen] ** 2).sum() / 3)
+        # The same static layer where nothing moves, against the recorded frame: its quality elsewhere.
+        sums["elsewhere"] += float(((rgb - background)[~mask] ** 2).sum() / 3)
+        elsewhere += int((~mask).sum())
     return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
             "psnr_removed_observed": psnr(sums["observed"], count - never),
+            "psnr_static_elsewhere": psnr(sums["elsewhere"], elsewhere),
             "pixels": count, "never_observed_fraction": never / count if count else None}
 
 
@@ -178,7 +183,7 @@ def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float],
 def summary(rows: list[dict]) -> dict:
     """Means over scenes of the headline numbers (None entries skipped)."""
     keys = ("recall", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
-            "psnr_kept", "gain_db", "psnr_removed_observed", "never_observed_fraction")
+            "psnr_kept", "gain_db", "psnr_removed_observed", "psnr_static_elsewhere", "never_observed_fraction")
     out = {}
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
@@ -207,8 +212,9 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     rows: list[dict] = []
-    document = {"settings": {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations,
-                             "seeds": args.seeds}, "scenes": rows}
+    settings = {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations, "seeds": args.seeds}
+    # Runs given with --run were trained elsewhere: the preset and iterations here say nothing about them.
+    document = {"settings": settings if args.seeds else {}, "runs": [str(p) for p in args.run], "scenes": rows}
     jobs = [(f"s{seed}", seed) for seed in args.seeds] + [(str(path), path) for path in args.run]
     for label, job in jobs:
         start = time.perf_counter()
