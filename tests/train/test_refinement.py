@@ -9,31 +9,22 @@ import json
 import numpy as np
 import pytest
 import torch
+from _prepared import prepared_tiny_scene
 
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.config import preset
-from radar4dgs.datasets.synth import SynthConfig, synthesize
 from radar4dgs.io.scene import read_scene
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.pose_refine import pose_error
 from radar4dgs.model.run import POSES_FILE, load_run
-from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.optimizers import pose_lr_scale
 from radar4dgs.train.trainer import train_run
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    with torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    scene = tmp_path_factory.mktemp("refine") / "scene"
-    synthesize(preset(SynthConfig, "tiny", seed=3, num_frames=8), scene, progress=False)
-    run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
-    return scene, scene / "prepared"
+    return prepared_tiny_scene(tmp_path_factory.mktemp("refine"), seed=3)
 
 
 def tiny_config(**poses) -> TrainConfig:

@@ -7,31 +7,22 @@ import math
 import numpy as np
 import pytest
 import torch
+from _prepared import prepared_tiny_scene
 
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.config import preset
-from radar4dgs.datasets.synth import SynthConfig, synthesize
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
 from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
-from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.trainer import Trainer, TrainingError, frame_order, psnr_of, step_generator, train_run
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    with torch_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
-    scene = tmp_path_factory.mktemp("train") / "scene"
-    synthesize(preset(SynthConfig, "tiny", seed=2, num_frames=8), scene, progress=False)
-    run_prepare(scene, None, preset(PrepareConfig, "tiny"), progress=False)
-    return scene, scene / "prepared"
+    return prepared_tiny_scene(tmp_path_factory.mktemp("train"), seed=2)
 
 
 def tiny_config(**overrides) -> TrainConfig:
