@@ -10,13 +10,21 @@
    are close at a few times at most, never at all of them. Still or faint Gaussians take no part.
 3. **Components.** Connected components of that graph (``scipy.sparse.csgraph``) with at least
    ``min_gaussians`` members are actors; smaller ones join the nearest actor or stay unassigned.
-4. **Shared radar returns.** Each actor's radar objects per frame (``<prepared>/radar/objects.json``,
-   centroids inside its footprint) are attached; two actors that stay together and share a radar
-   track most of the time are one object split in two, and are merged.
-5. **Poses.** Per frame: centroid (mean of the actor's Gaussians, which moves exactly with a rigid
-   body), velocity (its time derivative), heading (the velocity's direction, held while the actor is
-   slower than 1 m/s), frames of visibility (enough of its Gaussians in the camera's view), size and a
-   class guess from the footprint.
+4. **Opacity-weighted tracks.** A dynamic Gaussian renders only during its life span; outside it the
+   field still moves it, to places that mean nothing. An actor's centroid and velocity per frame are
+   therefore weighted by its Gaussians' opacities there, and it is "there" in the frames where its
+   opacity mass is a fair part of its largest.
+5. **Merging pieces.** The graph above also compares the meaningless out-of-life positions, so one car
+   comes out in pieces. Pieces seen together that stay within a car length along the heading and
+   ``merge_lateral`` across it at the same velocity (medians over their common frames) are one body;
+   so are pieces of which one takes over where the other stops (constant-velocity extrapolation over
+   at most ``handover_seconds``). Side-by-side cars in adjacent lanes fail the lateral test.
+6. **Spurious-actor filter.** Actors seen in fewer than ``min_frames`` frames, or whose centroid moves
+   less than ``min_displacement`` between their first and last frame, are dropped.
+7. **Poses and radar.** Per frame: centroid and velocity (above), heading (the velocity's direction,
+   held while the actor is slower than 1 m/s), frames of visibility (there, and enough of its opacity
+   in the camera's view), size and a class guess from the footprint of its opaque Gaussians, and the
+   radar objects (``<prepared>/radar/objects.json``) whose centroids fall inside its footprint.
 """
 
 from __future__ import annotations
@@ -125,11 +133,28 @@ def motion_components(features: np.ndarray, config: ActorConfig) -> np.ndarray:
     return labels
 
 
-def visible_frames(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, width: int, height: int,
-                   config: ActorConfig) -> np.ndarray:
-    """(V,) indices of the frames where at least ``visible_fraction`` of an actor's points (K, F, 3)
-    project inside the ``width`` x ``height`` image of the camera ``world_to_camera`` (F, 4, 4)
-    with intrinsics ``K`` (3, 3), in front of it and within ``max_range``."""
+def opacity_track(points: np.ndarray, weights: np.ndarray, timestamps: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Centroid (F, 3), velocity (F, 3) and opacity mass (F,) of points (K, F, 3) weighted per frame by
+    their opacities ``weights`` (K, F) at the frames' ``timestamps`` (F,) s. A dynamic Gaussian only
+    renders during its life span; outside it the field still moves it, to places that mean nothing, so
+    only the opaque ones count. The velocity is the weighted mean of each point's own velocity, not the
+    centroid's derivative (which jumps when Gaussians fade in or out). Frames with no opacity at all
+    take the plain mean."""
+    mass = weights.sum(axis=0)
+    some = mass > 1e-9
+    safe = np.where(some, mass, 1.0)[:, None]
+    rates = np.gradient(points, timestamps, axis=1) if len(timestamps) > 1 else np.zeros_like(points)
+    centroid = np.where(some[:, None], np.einsum("kf,kfi->fi", weights, points) / safe, points.mean(axis=0))
+    velocity = np.where(some[:, None], np.einsum("kf,kfi->fi", weights, rates) / safe, rates.mean(axis=0))
+    return centroid, velocity, mass
+
+
+def visible_frames(points: np.ndarray, weights: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray,
+                   width: int, height: int, config: ActorConfig) -> np.ndarray:
+    """(V,) indices of the frames where the actor is there and seen: its opacity mass (``weights``
+    (K, F) of its points (K, F, 3)) is at least ``presence_fraction`` of its largest, and at least
+    ``visible_fraction`` of that mass projects inside the ``width`` x ``height`` image of the camera
+    ``world_to_camera`` (F, 4, 4) with intrinsics ``K`` (3, 3), in front of it and within ``max_range``."""
     cam = np.einsum("fij,kfj->kfi", world_to_camera[:, :3, :3], points) + world_to_camera[None, :, :3, 3]
     z = cam[..., 2]
     safe = np.where(z > 1e-3, z, 1.0)
@@ -137,7 +162,9 @@ def visible_frames(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarra
     v = K[1, 1] * cam[..., 1] / safe + K[1, 2]
     inside = (z > 0.1) & (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
     inside &= np.linalg.norm(cam, axis=2) <= config.max_range
-    return np.flatnonzero(inside.mean(axis=0) >= config.visible_fraction)
+    mass = weights.sum(axis=0)
+    present = (mass > 0) & (mass >= config.presence_fraction * mass.max())
+    return np.flatnonzero(present & ((weights * inside).sum(axis=0) >= config.visible_fraction * mass))
 
 
 def headings(velocity: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -198,43 +225,87 @@ def radar_matches(points: np.ndarray, frames: np.ndarray, radar_objects: list[li
     return out
 
 
-def merge_groups(actors: list[Actor], config: ActorConfig) -> np.ndarray:
-    """(A,) group label of each of A actors: actors i, j are one when their planar centroids stay within
-    ``merge_distance`` at every frame both are visible in, and they share a radar track in at least half
-    of those frames or their median planar velocity difference there is below ``merge_velocity``
-    (transitively: connected components)."""
+def body_offsets(a: Actor, b: Actor, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(longitudinal, lateral) absolute planar offsets (each (len(frames),), m) of ``b``'s centroid from
+    ``a``'s in ``a``'s own frame (its heading) at ``frames``."""
+    d = b.centroid[frames, :2] - a.centroid[frames, :2]
+    c, s = np.cos(a.heading[frames]), np.sin(a.heading[frames])
+    return np.abs(d[:, 0] * c + d[:, 1] * s), np.abs(d[:, 1] * c - d[:, 0] * s)
+
+
+def moves_together(a: Actor, b: Actor, config: ActorConfig) -> bool:
+    """Whether two actors seen together in at least ``merge_frames`` frames are pieces of one rigid body
+    there: median offsets within ``merge_distance`` along ``a``'s heading and ``merge_lateral`` across
+    it, and median planar velocity difference below ``merge_velocity``. Cars side by side in adjacent
+    lanes (~3.5 m apart, same speed) fail the lateral test; cars that pass each other the velocity one."""
+    common = np.intersect1d(a.frames, b.frames)
+    if len(common) < config.merge_frames:
+        return False
+    longitudinal, lateral = body_offsets(a, b, common)
+    slip = np.linalg.norm(a.velocity[common, :2] - b.velocity[common, :2], axis=1)
+    return bool(np.median(longitudinal) <= config.merge_distance and np.median(lateral) <= config.merge_lateral
+                and np.median(slip) <= config.merge_velocity)
+
+
+def hands_over(a: Actor, b: Actor, timestamps: np.ndarray, config: ActorConfig) -> bool:
+    """Whether one actor takes over where the other stops (one car whose Gaussians of its first and last
+    seconds came apart): the later one starts at most ``handover_seconds`` after the earlier one's last
+    frame (or overlaps it by fewer than ``merge_frames``), where either's constant-velocity extrapolation
+    puts the other (offsets as :func:`moves_together`), at a velocity within ``merge_velocity``."""
+    if len(a.frames) == 0 or len(b.frames) == 0:
+        return False
+    if a.frames[0] > b.frames[0]:
+        a, b = b, a
+    end, start = int(a.frames[-1]), int(b.frames[0])
+    dt = timestamps[start] - timestamps[end]
+    if start < end - config.merge_frames + 1 or dt > config.handover_seconds:
+        return False
+    if np.linalg.norm(a.velocity[end, :2] - b.velocity[start, :2]) > config.merge_velocity:
+        return False
+    c, s = np.cos(a.heading[end]), np.sin(a.heading[end])
+    for gap in (a.centroid[end, :2] + a.velocity[end, :2] * dt - b.centroid[start, :2],
+                a.centroid[end, :2] - b.centroid[start, :2] + b.velocity[start, :2] * dt):
+        if abs(gap[0] * c + gap[1] * s) <= config.merge_distance and \
+                abs(gap[1] * c - gap[0] * s) <= config.merge_lateral:
+            return True
+    return False
+
+
+def merge_groups(actors: list[Actor], timestamps: np.ndarray, config: ActorConfig) -> np.ndarray:
+    """(A,) group label of each of A actors: pieces that :func:`moves_together` or :func:`hands_over`
+    are one (transitively: connected components)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    rows, cols = [], []
-    for i, a in enumerate(actors):
-        for j in range(i + 1, len(actors)):
-            b = actors[j]
-            common = np.intersect1d(a.frames, b.frames)
-            if len(common) == 0:
-                continue
-            gap = np.linalg.norm(a.centroid[common, :2] - b.centroid[common, :2], axis=1).max()
-            shared = sum(bool({o["track"] for o in a.radar.get(int(f), [])}
-                              & {o["track"] for o in b.radar.get(int(f), [])}) for f in common)
-            slip = np.median(np.linalg.norm(a.velocity[common, :2] - b.velocity[common, :2], axis=1))
-            if gap <= config.merge_distance and (shared >= 0.5 * len(common) or slip <= config.merge_velocity):
-                rows.append(i)
-                cols.append(j)
+    pairs = [(i, j) for i in range(len(actors)) for j in range(i + 1, len(actors))
+             if moves_together(actors[i], actors[j], config) or hands_over(actors[i], actors[j], timestamps, config)]
+    rows, cols = (list(x) for x in zip(*pairs, strict=True)) if pairs else ([], [])
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(actors),) * 2)
     return connected_components(graph, directed=False)[1]
 
 
-def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, timestamps: np.ndarray,
-                cameras: tuple[np.ndarray, np.ndarray, int, int], radar_objects, config: ActorConfig) -> Actor:
-    """The :class:`Actor` of ``gaussians`` (K,) from the dynamic set's ``trajectories`` (N, F, 3) at the
-    frames' ``timestamps`` (F,) seconds; ``cameras`` = (world_to_camera (F, 4, 4), K, width, height)."""
-    points = trajectories[gaussians]
-    centroid = points.mean(axis=0)
-    velocity = np.gradient(centroid, timestamps, axis=0) if len(timestamps) > 1 else np.zeros_like(centroid)
+def is_actor(actor: Actor, config: ActorConfig) -> bool:
+    """The spurious-actor filter: seen in at least ``min_frames`` frames, and its centroid moving at least
+    ``min_displacement`` (m, planar) between its first and last of them."""
+    if len(actor.frames) < config.min_frames:
+        return False
+    first, last = actor.centroid[actor.frames[0], :2], actor.centroid[actor.frames[-1], :2]
+    return bool(np.linalg.norm(last - first) >= config.min_displacement)
+
+
+def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, opacities: np.ndarray,
+                timestamps: np.ndarray, cameras: tuple[np.ndarray, np.ndarray, int, int], radar_objects,
+                config: ActorConfig) -> Actor:
+    """The :class:`Actor` of ``gaussians`` (K,) from the dynamic set's ``trajectories`` (N, F, 3) and
+    ``opacities`` (N, F) at the frames' ``timestamps`` (F,) seconds; ``cameras`` = (world_to_camera
+    (F, 4, 4), K, width, height)."""
+    points, weights = trajectories[gaussians], opacities[gaussians]
+    centroid, velocity, _ = opacity_track(points, weights, timestamps)
     heading = headings(velocity, points)
-    frames = visible_frames(points, *cameras, config)
+    frames = visible_frames(points, weights, *cameras, config)
     reference = int(frames[len(frames) // 2]) if len(frames) else 0
-    size = footprint_size(points[:, reference], float(heading[reference]))
+    opaque = weights[:, reference] >= config.min_opacity  # the size of what renders there
+    size = footprint_size(points[opaque if opaque.sum() >= 4 else slice(None), reference], float(heading[reference]))
     return Actor(index, np.sort(gaussians), frames, centroid, velocity, heading, size, class_guess(size),
                  radar_matches(points, frames, radar_objects, config.radar_margin))
 
@@ -242,7 +313,7 @@ def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, tim
 def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None = None) -> list[Actor]:
     """The actors of a trained ``model`` of ``scene`` (every frame's time and camera), biggest first,
     ids 0, 1, ...; ``radar_objects`` is ``load_radar_objects(prepared)`` or None (no radar returns).
-    Actors visible in no frame are dropped."""
+    Actors the spurious-actor filter (:func:`is_actor`) rejects are dropped."""
     from radar4dgs.io.scene import normalized_times
 
     config = config or ActorConfig()
@@ -255,14 +326,14 @@ def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None
     sampled = sample_indices(len(times), config.sample_frames)
     labels = motion_components(trajectories[active][:, sampled], config)
     groups = [active[labels == k] for k in range(int(labels.max()) + 1 if len(labels) else 0)]
-    actors = [build_actor(k, g, trajectories, timestamps, cameras, radar_objects, config)
+    actors = [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
               for k, g in enumerate(groups)]
     if len(actors) > 1:
-        merged = merge_groups(actors, config)
+        merged = merge_groups(actors, timestamps, config)
         groups = [np.concatenate([groups[i] for i in np.flatnonzero(merged == m)]) for m in np.unique(merged)]
-        actors = [build_actor(k, g, trajectories, timestamps, cameras, radar_objects, config)
+        actors = [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
                   for k, g in enumerate(groups)]
-    actors = sorted((a for a in actors if len(a.frames)), key=lambda a: -len(a.gaussians))
+    actors = sorted((a for a in actors if is_actor(a, config)), key=lambda a: -len(a.gaussians))
     for k, actor in enumerate(actors):
         actor.id = k
     return actors

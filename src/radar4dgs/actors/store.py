@@ -94,10 +94,12 @@ def read_actors(path: Path) -> list[Actor]:
 
 
 def is_current(run_root: Path) -> bool:
-    """RUN/actors.json exists and was computed from the present model.pt."""
+    """RUN/actors.json exists and was computed from the present model.pt with the present default
+    :class:`ActorConfig` (a file from an older discovery is recomputed)."""
     path = Path(run_root) / ACTORS_FILE
     try:
-        return json.loads(path.read_text(encoding="utf-8")).get("model") == model_stamp(run_root)
+        document = json.loads(path.read_text(encoding="utf-8"))
+        return document.get("model") == model_stamp(run_root) and document.get("config") == to_dict(ActorConfig())
     except (OSError, ValueError, AttributeError):
         return False
 
