@@ -37,10 +37,11 @@ def scene_metadata(name: str, camera: Camera, radar: RadarSpec | None, frames: I
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": name, "source": dict(source or {}),
         "camera": {"width": int(camera.width), "height": int(camera.height), "K": _listify(camera.K),
                    "cam_to_ego": _listify(camera.cam_to_ego)},
-        "frames": frame_list,
     }
     if isinstance(radar, RadarSpec):  # a radar-less scene (None or MissingRadar) has no section
         meta["radar"] = {"radar_to_ego": _listify(radar.radar_to_ego), "fields": list(radar.fields)}
+    # After the radar, as before radar became optional: a radar scene's scene.json stays byte-identical.
+    meta["frames"] = frame_list
     if test_every is not None:
         meta["test_every"] = int(test_every)
     meta.update(extra or {})
