@@ -28,6 +28,7 @@ from radar4dgs.io.scene_format import (
                                        REQUIRED_RADAR_FIELDS,
                                        SceneError,
                                        SceneWarning,
+                                       read_json_file,
 )
 from radar4dgs.io.scene_read import read_scene
 from radar4dgs.io.scene_types import Camera, Frame, RadarScan, RadarSpec, Scene, normalized_times, split_indices
@@ -37,6 +38,6 @@ __all__ = [
     "DEFAULT_TEST_EVERY", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_SUFFIXES", "OPTIONAL_FOLDERS",
     "ORTHONORMAL_TOLERANCE", "POINTS_FILE", "REQUIRED_RADAR_FIELDS", "Camera", "Frame", "RadarScan", "RadarSpec",
     "Scene",
-    "SceneError", "SceneWarning", "SceneWriter", "normalized_times", "read_mask_png", "read_scene",
+    "SceneError", "SceneWarning", "SceneWriter", "normalized_times", "read_json_file", "read_mask_png", "read_scene",
     "save_array", "scene_metadata", "split_indices", "write_scene_json",
 ]

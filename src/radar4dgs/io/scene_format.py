@@ -3,7 +3,9 @@ warning types that every reader, loader and writer of a scene folder raises."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 FORMAT_NAME = "radar4dgs-scene"
 FORMAT_VERSION = 1
@@ -37,6 +39,15 @@ class SceneError(ValueError):
         self.path = Path(path)
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+def read_json_file(path: Path) -> Any:
+    """The JSON value in ``path``; a file that cannot be read or parsed is a :class:`SceneError`
+    naming it (scene.json and every converter's JSON inputs)."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SceneError(path, f"unreadable JSON ({exc})") from exc
 
 
 class SceneWarning(UserWarning):

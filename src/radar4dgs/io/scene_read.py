@@ -5,7 +5,6 @@ that every frame's image and radar file exists with the declared size and column
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -22,6 +21,7 @@ from radar4dgs.io.scene_format import (
     ORTHONORMAL_TOLERANCE,
     REQUIRED_RADAR_FIELDS,
     SceneError,
+    read_json_file,
 )
 from radar4dgs.io.scene_types import Camera, Frame, MissingRadar, RadarSpec, Scene
 
@@ -111,10 +111,7 @@ def _load_meta(root: Path) -> tuple[Path, Mapping[str, Any]]:
     meta_path = root / "scene.json"
     if not meta_path.is_file():
         raise SceneError(meta_path, "missing file")
-    try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SceneError(meta_path, f"unreadable JSON ({exc})") from exc
+    meta = read_json_file(meta_path)
     if not isinstance(meta, Mapping):
         raise SceneError(meta_path, "top level must be a JSON object")
     if meta.get("format") != FORMAT_NAME:

@@ -29,7 +29,6 @@ in ``tests/data/test_convert_aimotive.py``):
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import sys
@@ -44,7 +43,7 @@ import tyro
 from radar4dgs.datasets.convert.common import fit_scans, scaled_intrinsics, transform_points, write_scene
 from radar4dgs.datasets.synth.camera import CV_TO_EGO
 from radar4dgs.datasets.synth.radar import spherical_to_xyz
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError, read_json_file
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.poses import ego_rates_from_radar, integrate_poses
 from radar4dgs.radar.process import smooth_velocities
@@ -75,10 +74,7 @@ def _need(path: Path, what: str) -> Path:
 
 def _read_json(path: Path) -> Any:
     _need(path, "expected by the aiMotive layout")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise SceneError(path, f"unreadable JSON ({exc})") from exc
+    return read_json_file(path)
 
 
 def opencv_axes(cam_to_body: np.ndarray, path: Path) -> np.ndarray:

@@ -17,7 +17,6 @@ seconds apart.
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +38,7 @@ from radar4dgs.datasets.convert.camera_import import (
     test_every_of,
     write_radarless_scene,
 )
-from radar4dgs.io.scene import DEFAULT_TEST_EVERY, SceneError
+from radar4dgs.io.scene import DEFAULT_TEST_EVERY, SceneError, read_json_file
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 DISTORTION_KEYS = ("k1", "k2", "p1", "p2", "k3", "k4")
@@ -59,10 +58,7 @@ def read_transforms(src: Path) -> tuple[Path, Mapping[str, Any]]:
     path = src / "transforms.json" if src.is_dir() else src
     if not path.is_file():
         raise SceneError(path, "missing file (a nerfstudio dataset has a transforms.json)")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SceneError(path, f"unreadable JSON ({exc})") from exc
+    meta = read_json_file(path)
     if not isinstance(meta, Mapping) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise SceneError(path, "needs a non-empty 'frames' list")
     return path, meta

@@ -78,7 +78,7 @@ from radar4dgs.datasets.convert.common import (
     rebase,
     write_scene,
 )
-from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError
+from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneError, read_json_file
 from radar4dgs.io.scene_read import rigid_matrix
 
 CAMERA = "camera_front"
@@ -95,10 +95,7 @@ def _read_table(tables: Path, *names: str, required: bool = True) -> tuple[list[
     for name in names:
         path = tables / f"{name}.json"
         if path.is_file():
-            try:
-                rows = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise SceneError(path, f"unreadable JSON ({exc})") from exc
+            rows = read_json_file(path)
             if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
                 raise SceneError(path, "expected a JSON list of objects (a NewScenes table)")
             return rows, path
