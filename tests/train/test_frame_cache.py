@@ -57,7 +57,7 @@ def test_training_with_a_small_cache_gives_the_same_run(tiny_trained_run, tmp_pa
         trainer = Trainer(scene, scene / "prepared", tmp_path / f"run{size}", config, progress=False,
                           tensorboard=False)
         states[size] = trainer.train()
-        held = len(trainer.targets._cache)
+        held = trainer.targets.held
         assert held == (len(trainer.train_indices) if size == 0 else 2)
     a, b = (states[s].model.payload() for s in (0, 2))
     assert a["static"].keys() == b["static"].keys()

@@ -11,7 +11,7 @@ lifted pseudo scene-flow pairs of ``prepared/flow`` and the radar-associated dyn
 
 from __future__ import annotations
 
-from collections import OrderedDict
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Mapping, Sequence
@@ -127,27 +127,27 @@ class FrameTargetCache(Sequence[FrameTargets]):
         if size < 0:
             raise ValueError(f"frame_cache must be >= 0, got {size}")
         self._load, self._count, self.size = load, int(count), int(size)
-        self._cache: OrderedDict[int, FrameTargets] = OrderedDict()
+        self._cached = functools.lru_cache(maxsize=self.size or None)(self._counted_load)
         self.loads = 0
+
+    def _counted_load(self, k: int) -> FrameTargets:
+        self.loads += 1
+        return self._load(k)
 
     def __len__(self) -> int:
         return self._count
+
+    @property
+    def held(self) -> int:
+        """How many frames' targets are in memory now."""
+        return self._cached.cache_info().currsize
 
     def __getitem__(self, k):  # type: ignore[override]
         if isinstance(k, slice):
             return [self[i] for i in range(*k.indices(self._count))]
         if not -self._count <= k < self._count:
             raise IndexError(f"frame {k} of {self._count}")
-        k = int(k) % self._count
-        if k in self._cache:
-            self._cache.move_to_end(k)
-            return self._cache[k]
-        target = self._load(k)
-        self.loads += 1
-        self._cache[k] = target
-        if self.size and len(self._cache) > self.size:
-            self._cache.popitem(last=False)
-        return target
+        return self._cached(int(k) % self._count)
 
 
 def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: np.ndarray,
