@@ -17,6 +17,7 @@ from typing import Annotated, Any, ClassVar, Optional
 import tyro
 
 from radar4dgs.apps.options import default_is
+from radar4dgs.apps.reuse import holds_run
 from radar4dgs.config import PresetName
 from radar4dgs.model.config import Method, TrainConfig
 from radar4dgs.train.variants import MethodName
@@ -89,7 +90,7 @@ class TrainCommand:
     def folders(self) -> tuple[Path, Path, Path]:
         """(run folder, scene, prepared folder): from the options or, for ``train RUN --resume``
         (the positional path a run folder), from ``RUN/run.json``."""
-        if not (self.resume and is_run_folder(self.scene)):
+        if not (self.resume and holds_run(self.scene)):
             return self.out, self.scene, self.prepared if self.prepared is not None else self.scene / "prepared"
         run = self.scene
         if self.out != DEFAULT_OUT and self.out.resolve() != run.resolve():
@@ -104,7 +105,7 @@ class TrainCommand:
 
         config = apply_variant(self.config, self.method)  # a TrainConfig, the method's fields set
         resume, provenance = self.resume, self._provenance(out, scene)
-        if self.resume and is_run_folder(out):
+        if self.resume and holds_run(out):
             resumed, changes, conflict = self._resume_config(out, config)
             if not conflict:
                 config = resumed
@@ -122,7 +123,7 @@ class TrainCommand:
             print(f"--force: removed the earlier run in {out}")
             resume, provenance = False, self._provenance(out, scene, fresh=True)
         check_prepared_scene(scene, prepared)
-        if resume and is_run_folder(out):
+        if resume and holds_run(out):
             # The iteration count a resume changed (now, or in a call killed before it trained).
             accept_resume_changes(out, config)
             if provenance.get("resumed"):
@@ -170,20 +171,13 @@ class TrainCommand:
         earlier = None if fresh or not self.resume else read_json(out / PROVENANCE_FILE)
         if earlier and earlier.get("command"):
             return {k: earlier[k] for k in ("preset", "method", "command", "resumed") if k in earlier}
-        unknown = self.resume and not fresh and is_run_folder(out)
+        unknown = self.resume and not fresh and holds_run(out)
         if unknown:
             return {"preset": None, "method": None,
                     "command": f"radar4dgs train {out} --resume (the run's first command was not recorded)"}
         return {"preset": self.preset, "method": self.method,
                 "command": f"radar4dgs train {scene} --out {out} --preset {self.preset} --method {self.method} "
                            f"(other options: config.json)"}
-
-
-def is_run_folder(folder: Path) -> bool:
-    """Whether ``folder`` holds a run started by ``radar4dgs train`` (its run.json and config.json)."""
-    from radar4dgs.apps.reuse import holds_run
-
-    return holds_run(folder)
 
 
 def recorded_folders(run: Path) -> tuple[Path, Path]:
