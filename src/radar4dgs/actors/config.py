@@ -65,6 +65,22 @@ class ActorConfig:
     visible_fraction: float = 0.2
     # See `visible_fraction` (m).
     max_range: float = 80.0
+    # Radar cues (radar_cues.py; only when the prepared folder has radar objects). Radar tracks are
+    # linked into chains (the tracker loses a car for a few scans, or sees a near one as two clusters):
+    # tracks seen together with a median centroid distance within this (m), or one continuing the other
+    # within `handover_seconds` where the first's radar velocity predicts it, within this distance.
+    radar_link_distance: float = 2.5
+    # A chain seen in fewer frames is clutter (one or two scans of two returns) and supports nothing.
+    radar_chain_frames: int = 3
+    # A piece of Gaussians is supported by radar in a frame when a confirmed chain's object lies within
+    # this planar distance (m) of its centroid (both are centroids of the surfaces their sensor sees).
+    radar_gate: float = 3.0
+    # Spurious-actor filter: an actor supported by radar in fewer of its frames of visibility is dropped
+    # (the radar saw nothing move there); 0 turns the filter off.
+    min_radar_frames: int = 2
+    # A confirmed chain that no actor took seeds an actor from the unassigned moving Gaussians along it
+    # (at least `min_gaussians` of them): a car the short training learnt too faintly to form a piece.
+    radar_seeds: bool = True
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         # One set of values for every size: the thresholds are metres in the world, not pixels.

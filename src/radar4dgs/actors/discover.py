@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from radar4dgs.actors.config import ActorConfig
+from radar4dgs.actors.radar_cues import RadarChains, distinct_objects, main_chain, radar_chains, seed_members, support
 
 # Slower than this (m/s), the velocity's direction is noise: the heading is held from a faster frame.
 HEADING_SPEED = 1.0
@@ -206,18 +207,22 @@ def class_guess(size: tuple[float, float, float]) -> str:
     return "unknown"
 
 
-def radar_matches(points: np.ndarray, frames: np.ndarray, radar_objects: list[list[Any]] | None,
-                  margin: float) -> dict[int, list[dict[str, Any]]]:
+def radar_matches(points: np.ndarray, weights: np.ndarray, frames: np.ndarray, radar_objects: list[list[Any]] | None,
+                  config: ActorConfig) -> dict[int, list[dict[str, Any]]]:
     """Per visible frame index, the radar objects (``load_radar_objects`` records) whose centroid lies
-    within ``margin`` metres of the planar bounding box of the actor's points (K, F, 3) there:
-    ``{"track", "num_returns", "points"}`` each (``points``: rows of ``scene.load_radar(frame)``)."""
+    within ``radar_margin`` metres of the planar bounding box of the actor's points (K, F, 3) that render
+    there (opacity ``weights`` (K, F) at least ``min_opacity``; all when fewer than 4 do: out of their
+    life span the field flings Gaussians far away): ``{"track", "num_returns", "points"}`` each
+    (``points``: rows of ``scene.load_radar(frame)``)."""
     out: dict[int, list[dict[str, Any]]] = {}
     if not radar_objects:
         return out
     for f in frames:
         if f >= len(radar_objects):
             continue
-        low, high = points[:, f, :2].min(axis=0) - margin, points[:, f, :2].max(axis=0) + margin
+        opaque = weights[:, f] >= config.min_opacity
+        xy = points[opaque if opaque.sum() >= 4 else slice(None), f, :2]
+        low, high = xy.min(axis=0) - config.radar_margin, xy.max(axis=0) + config.radar_margin
         hits = [{"track": int(o.track), "num_returns": int(o.num_returns), "points": o.points.tolist()}
                 for o in radar_objects[f] if np.all(o.centroid[:2] >= low) and np.all(o.centroid[:2] <= high)]
         if hits:
@@ -271,14 +276,25 @@ def hands_over(a: Actor, b: Actor, timestamps: np.ndarray, config: ActorConfig) 
     return False
 
 
-def merge_groups(actors: list[Actor], timestamps: np.ndarray, config: ActorConfig) -> np.ndarray:
+def merge_groups(actors: list[Actor], timestamps: np.ndarray, config: ActorConfig,
+                 chains: tuple[list[int], RadarChains] | None = None) -> np.ndarray:
     """(A,) group label of each of A actors: pieces that :func:`moves_together` or :func:`hands_over`
-    are one (transitively: connected components)."""
+    are one (transitively: connected components). With ``chains`` (each piece's main radar chain, -1 for
+    none, and the :class:`RadarChains`): pieces on one chain are one, and pieces on two chains seen at the
+    same time are never linked directly."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    pairs = [(i, j) for i in range(len(actors)) for j in range(i + 1, len(actors))
-             if moves_together(actors[i], actors[j], config) or hands_over(actors[i], actors[j], timestamps, config)]
+    def linked(i: int, j: int) -> bool:
+        if chains is not None:
+            main, radar = chains
+            if distinct_objects(main[i], main[j], radar):
+                return False
+            if main[i] >= 0 and main[i] == main[j]:
+                return True
+        return moves_together(actors[i], actors[j], config) or hands_over(actors[i], actors[j], timestamps, config)
+
+    pairs = [(i, j) for i in range(len(actors)) for j in range(i + 1, len(actors)) if linked(i, j)]
     rows, cols = (list(x) for x in zip(*pairs, strict=True)) if pairs else ([], [])
     graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(actors),) * 2)
     return connected_components(graph, directed=False)[1]
@@ -291,6 +307,38 @@ def is_actor(actor: Actor, config: ActorConfig) -> bool:
         return False
     first, last = actor.centroid[actor.frames[0], :2], actor.centroid[actor.frames[-1], :2]
     return bool(np.linalg.norm(last - first) >= config.min_displacement)
+
+
+def radar_supported(actor: Actor, radar: RadarChains | None, config: ActorConfig) -> bool:
+    """The radar part of the spurious-actor filter: a confirmed radar chain within ``radar_gate`` of the
+    actor's centroid in at least ``min_radar_frames`` of its frames of visibility (always true without
+    radar)."""
+    if radar is None or config.min_radar_frames <= 0:
+        return True
+    return int((support(actor.centroid, actor.frames, radar, config.radar_gate) >= 0).sum()) >= config.min_radar_frames
+
+
+def radar_seeded(actors: list[Actor], groups: list[np.ndarray], active: np.ndarray, radar: RadarChains,
+                 trajectories: np.ndarray, opacities: np.ndarray, config: ActorConfig) -> list[np.ndarray]:
+    """Groups (each (K,) dynamic indices) seeded by the confirmed radar chains that none of the ``actors``
+    (of ``groups``) took (its main chain, or one supporting it in ``radar_chain_frames`` frames): the
+    ``active`` Gaussians of no group along the chain's path (:func:`seed_members`), when at least
+    ``min_gaussians``."""
+    taken_chains: set[int] = set()
+    for actor in actors:
+        supported = support(actor.centroid, actor.frames, radar, config.radar_gate)
+        counts = np.bincount(supported[supported >= 0], minlength=1)
+        taken_chains |= {main_chain(supported)} | set(np.flatnonzero(counts >= config.radar_chain_frames).tolist())
+    free = np.setdiff1d(active, np.concatenate(groups) if groups else np.zeros(0, dtype=np.int64))
+    seeds = []
+    for chain in radar.frames:
+        if chain in taken_chains:
+            continue
+        members = seed_members(chain, radar, trajectories, opacities, free, config)
+        if len(members) >= config.min_gaussians:
+            seeds.append(members)
+            free = np.setdiff1d(free, members)
+    return seeds
 
 
 def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, opacities: np.ndarray,
@@ -307,13 +355,14 @@ def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, opa
     opaque = weights[:, reference] >= config.min_opacity  # the size of what renders there
     size = footprint_size(points[opaque if opaque.sum() >= 4 else slice(None), reference], float(heading[reference]))
     return Actor(index, np.sort(gaussians), frames, centroid, velocity, heading, size, class_guess(size),
-                 radar_matches(points, frames, radar_objects, config.radar_margin))
+                 radar_matches(points, weights, frames, radar_objects, config))
 
 
 def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None = None) -> list[Actor]:
     """The actors of a trained ``model`` of ``scene`` (every frame's time and camera), biggest first,
-    ids 0, 1, ...; ``radar_objects`` is ``load_radar_objects(prepared)`` or None (no radar returns).
-    Actors the spurious-actor filter (:func:`is_actor`) rejects are dropped."""
+    ids 0, 1, ...; ``radar_objects`` is ``load_radar_objects(prepared)`` or None (no radar returns: the
+    motion cues alone). Actors the spurious-actor filter (:func:`is_actor`, radar support) rejects are
+    dropped; radar chains no actor took seed actors (:mod:`radar4dgs.actors.radar_cues`)."""
     from radar4dgs.io.scene import normalized_times
 
     config = config or ActorConfig()
@@ -322,18 +371,28 @@ def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None
     trajectories, opacities = dynamic_trajectories(model, times)
     cameras = (np.stack([scene.world_to_camera(i) for i in range(len(scene))]),
                np.asarray(scene.camera.K, dtype=np.float64), int(scene.camera.width), int(scene.camera.height))
+    radar = None if radar_objects is None else radar_chains(radar_objects, timestamps, config)
+
+    def build(groups: list[np.ndarray]) -> list[Actor]:
+        return [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
+                for k, g in enumerate(groups)]
+
     active = np.flatnonzero(moving_mask(trajectories, opacities, config))
-    sampled = sample_indices(len(times), config.sample_frames)
-    labels = motion_components(trajectories[active][:, sampled], config)
+    labels = motion_components(trajectories[active][:, sample_indices(len(times), config.sample_frames)], config)
     groups = [active[labels == k] for k in range(int(labels.max()) + 1 if len(labels) else 0)]
-    actors = [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
-              for k, g in enumerate(groups)]
+    actors = build(groups)
     if len(actors) > 1:
-        merged = merge_groups(actors, timestamps, config)
+        main = None if radar is None else [main_chain(support(a.centroid, a.frames, radar, config.radar_gate))
+                                           for a in actors]
+        merged = merge_groups(actors, timestamps, config, None if main is None else (main, radar))
         groups = [np.concatenate([groups[i] for i in np.flatnonzero(merged == m)]) for m in np.unique(merged)]
-        actors = [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
-                  for k, g in enumerate(groups)]
-    actors = sorted((a for a in actors if is_actor(a, config)), key=lambda a: -len(a.gaussians))
+        actors = build(groups)
+    keep = [k for k, a in enumerate(actors) if is_actor(a, config) and radar_supported(a, radar, config)]
+    groups = [groups[k] for k in keep]
+    if radar is not None and config.radar_seeds:
+        groups += radar_seeded([actors[k] for k in keep], groups, active, radar, trajectories, opacities, config)
+    actors = [a for a in build(groups) if is_actor(a, config) and radar_supported(a, radar, config)]
+    actors.sort(key=lambda a: -len(a.gaussians))
     for k, actor in enumerate(actors):
         actor.id = k
     return actors
