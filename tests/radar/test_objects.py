@@ -180,7 +180,7 @@ def test_kalman_filter_tracks_through_a_missed_frame():
     # Filtering beats one measurement: the velocity std shrinks below the measurement's 0.5 m/s.
     final = out[-1]
     assert np.sqrt(final.covariances[0, 2, 2]) < 0.35
-    assert np.linalg.norm(final.states[0, 2:] - v) < 3 * np.sqrt(np.trace(final.covariances[0, 2:, 2:]))
+    assert np.linalg.norm(final.states[0, 2:4] - v) < 3 * np.sqrt(np.trace(final.covariances[0, 2:4, 2:4]))
 
 
 def test_tracks_end_after_too_many_missed_frames_and_far_detections_start_new_ones():

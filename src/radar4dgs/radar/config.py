@@ -9,7 +9,7 @@ from typing import Any, ClassVar, Literal, Mapping
 @dataclass
 class RadarObjectConfig:
     """Dynamic radar points grouped into objects, each object's planar velocity from its returns'
-    compensated Doppler, and constant-velocity tracking in the world (``objects.py``, ``tracking.py``)."""
+    compensated Doppler, and coordinated-turn tracking in the world (``objects.py``, ``tracking.py``)."""
 
     # Dynamic points closer than this (m) join one object (single linkage on a cKDTree radius graph):
     # a car's returns are at most ~1 m apart along its outline, cars in adjacent lanes ~3.5 m.
@@ -51,6 +51,20 @@ class RadarObjectConfig:
     # ordinary traffic accelerates and brakes within +-2 m/s^2 (3 made the tracked velocity ~20 %
     # noisier on the small synthetic scenes, 1.5 barely better).
     accel_std: float = 2.0
+    # Tracking: the straight model's acceleration std (m/s^2) across the velocity of a track faster than
+    # 1 m/s: a road vehicle brakes and accelerates along its heading; sideways it turns (the turning
+    # model). 0.5 broke tracks where a car starts a lane change; 2 (isotropic) lost the calm seeds' gain.
+    lateral_accel_std: float = 1.0
+    # Tracking: std (rad/s) of a new track's yaw rate (it starts at 0): a lane change turns at up to
+    # ~0.5 rad/s, a turn at an intersection ~0.3 rad/s.
+    yaw_rate_std: float = 0.3
+    # Tracking: white yaw-acceleration process noise std (rad/s^2); a lane change goes from 0 to
+    # 0.45 rad/s and back within ~1 s.
+    yaw_accel_std: float = 1.0
+    # Tracking (interacting multiple models, straight and turning): per-scan probability that a
+    # straight track starts turning, and that a turning one goes straight again.
+    turn_start_probability: float = 0.05
+    turn_end_probability: float = 0.2
     # Tracking: a detection may update a track when its squared Mahalanobis distance (4 dof: centroid
     # and velocity) is below this (chi-square 4 dof at 99.9 % = 18.47).
     gate_chi2: float = 18.47

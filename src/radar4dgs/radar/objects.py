@@ -14,8 +14,9 @@ prior (``residual_prior_std``, ``residual_prior_dof``). When the inliers' azimut
 (``min_azimuth_spread_deg``) or the tangential std that spread predicts is too large
 (``max_tangential_std``), the object is flagged unobservable and its velocity is the radial-only
 estimate ``s u`` (``u`` the mean planar line of sight) with variance ``unobserved_std^2`` across ``u``.
-Rotation of the object (a turning car) is not modelled: its returns' velocities then differ by
-``omega x r``, ~0.5 m/s across a car at 0.25 rad/s, which the inlier band absorbs.
+A turning object (yaw rate ``omega``) fits no worse: every return then reads the body's velocity
+field at the radar, ``v + omega J (r - p)`` (``tracking.py``), so one scan's fit is that, not the
+object's own velocity; the tracker separates the two over scans.
 
 Output ``<prepared>/radar/objects.json`` (written by ``prepare_radar``; world frame of scene.json)::
 
@@ -23,9 +24,11 @@ Output ``<prepared>/radar/objects.json`` (written by ``prepare_radar``; world fr
      "frames": [{"name": "000000", "timestamp": 0.0, "objects": [{
         "track": 0,                         # track id, stable across frames
         "centroid": [x, y, z],              # mean of the object's inlier returns (world, m)
-        "velocity": [vx, vy, 0.0],          # Kalman-filtered track velocity after this frame (world, m/s)
+        "velocity": [vx, vy, 0.0],          # tracked velocity (IMM, at the centroid) after this frame (world, m/s)
         "velocity_covariance": [[..], [..]],        # its 2x2 covariance (m^2/s^2)
-        "frame_velocity": [vx, vy, 0.0],    # this scan's own fit (the filter's measurement)
+        "yaw_rate": 0.0, "yaw_rate_std": 0.3,       # tracked yaw rate (rad/s, counter-clockwise) and its std
+        "turning": 0.1,                     # probability of the tracker's turning model
+        "frame_velocity": [vx, vy, 0.0],    # this scan's own fit: the velocity field at the radar
         "frame_velocity_covariance": [[..], [..]],
         "radial_velocity": [vx, vy, 0.0],   # radial-only estimate along the mean line of sight
         "observable": true,                 # false: frame_velocity IS radial_velocity (narrow spread)
@@ -208,14 +211,16 @@ class Detection:
 
     Attributes:
         centroid: (3,) world mean of the inlier returns.
-        fit: its :class:`VelocityFit` (world x, y).
+        fit: its :class:`VelocityFit` (world x, y): the object's velocity field at the radar.
         points: (K,) int64 scan rows of the inlier returns; outliers: (L,) the cluster's other rows.
+        radar: (3,) world position of the radar at the scan (the point where ``fit`` holds).
     """
 
     centroid: np.ndarray
     fit: VelocityFit
     points: np.ndarray
     outliers: np.ndarray
+    radar: np.ndarray
 
 
 def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, radar_to_world: np.ndarray,
@@ -248,7 +253,7 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
         if fit.inliers.sum() < max(config.min_returns, 1):
             continue
         detections.append(Detection(p_world[members[fit.inliers]].mean(axis=0), fit,
-                                    rows[members[fit.inliers]], rows[members[~fit.inliers]]))
+                                    rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy()))
     return detections
 
 
@@ -268,12 +273,15 @@ def _matrix(m: np.ndarray) -> list[list[float]]:
     return [[float(x) for x in row] for row in m]
 
 
-def object_record(detection: Detection, track: int, state: np.ndarray, covariance: np.ndarray) -> dict:
-    """One object's JSON record (module doc) from its detection and its track's (4,) state and (4, 4)
-    covariance after this frame."""
+def object_record(detection: Detection, track: int, state: np.ndarray, covariance: np.ndarray,
+                  turning: float = 0.0) -> dict:
+    """One object's JSON record (module doc) from its detection and its track's (5,) state
+    (p_x, p_y, v_x, v_y, omega), (5, 5) covariance and turning-model probability after this frame."""
     fit = detection.fit
     return {"track": int(track), "centroid": [float(x) for x in detection.centroid],
-            "velocity": _planar3(state[2:]), "velocity_covariance": _matrix(covariance[2:, 2:]),
+            "velocity": _planar3(state[2:4]), "velocity_covariance": _matrix(covariance[2:4, 2:4]),
+            "yaw_rate": float(state[4]), "yaw_rate_std": math.sqrt(max(float(covariance[4, 4]), 0.0)),
+            "turning": float(turning),
             "frame_velocity": _planar3(fit.velocity), "frame_velocity_covariance": _matrix(fit.covariance),
             "radial_velocity": _planar3(fit.radial_velocity), "observable": bool(fit.observable),
             "azimuth_spread_deg": math.degrees(fit.azimuth_spread), "residual_std": float(fit.residual_std),
@@ -288,10 +296,13 @@ def track_objects(names: list[str], timestamps: np.ndarray, detections: list[lis
     pairs = [[measurement(d, config) for d in frame] for frame in detections]
     z = [np.array([p[0] for p in frame]).reshape(-1, 4) for frame in pairs]
     R = [np.array([p[1] for p in frame]).reshape(-1, 4, 4) for frame in pairs]
-    tracked = track_detections(np.asarray(timestamps, dtype=np.float64), z, R, config)
+    # The radar's planar position at each scan (the point where every fit of that scan holds).
+    radars = np.array([frame[0].radar[:2] if frame else np.zeros(2) for frame in detections]).reshape(-1, 2)
+    tracked = track_detections(np.asarray(timestamps, dtype=np.float64), z, R, config, radars)
     frames = []
     for name, stamp, found, out in zip(names, timestamps, detections, tracked, strict=True):
-        objects = [object_record(d, out.ids[k], out.states[k], out.covariances[k]) for k, d in enumerate(found)]
+        objects = [object_record(d, out.ids[k], out.states[k], out.covariances[k], out.turning[k])
+                   for k, d in enumerate(found)]
         frames.append({"name": name, "timestamp": float(stamp), "objects": objects})
     return {"format": FORMAT, "version": 1, "frames": frames}
 
