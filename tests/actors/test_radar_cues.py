@@ -109,4 +109,12 @@ def test_a_weak_mover_on_a_radar_track_is_found(oracle, oracle_paths):
     assert len(seeded.gaussians) == len(weak)
     # Its centroid: the box centre plus the mean drift (tens of cm), well inside the benchmark's gates.
     assert score["centroid_error_median"] < 0.5
+    # Its velocity where the radar saw it is the radar's (here the generator's own), not its drifting
+    # Gaussians'.
+    mover = next(m for m in movers if m.id == weak_id)
+    assert np.allclose(seeded.velocity[seeded.frames, :2], mover.velocity[seeded.frames, :2], atol=1e-9)
+    drifting = discover.discover_actors(oracle.run.model, scene, _radar_on_movers(scene),
+                                        ActorConfig(attach_distance=0.0, radar_velocity=False))
+    slow = next(a for a in drifting if set(a.gaussians) <= set(weak))
+    assert np.abs(slow.velocity[slow.frames, :2] - mover.velocity[slow.frames, :2]).max() > 0.01
 

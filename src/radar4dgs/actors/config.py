@@ -81,6 +81,9 @@ class ActorConfig:
     # A confirmed chain that no actor took seeds an actor from the unassigned moving Gaussians along it
     # (at least `min_gaussians` of them): a car the short training learnt too faintly to form a piece.
     radar_seeds: bool = True
+    # In the frames where a radar chain supports an actor, its velocity is the radar's (Doppler measures
+    # it; the deformation field of a short training learns it roughly); elsewhere its Gaussians'.
+    radar_velocity: bool = True
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         # One set of values for every size: the thresholds are metres in the world, not pixels.

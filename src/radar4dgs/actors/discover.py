@@ -35,7 +35,15 @@ from typing import Any
 import numpy as np
 
 from radar4dgs.actors.config import ActorConfig
-from radar4dgs.actors.radar_cues import RadarChains, distinct_objects, main_chain, radar_chains, seed_members, support
+from radar4dgs.actors.radar_cues import (
+    RadarChains,
+    distinct_objects,
+    main_chain,
+    radar_chains,
+    radar_velocity,
+    seed_members,
+    support,
+)
 
 # Slower than this (m/s), the velocity's direction is noise: the heading is held from a faster frame.
 HEADING_SPEED = 1.0
@@ -343,14 +351,19 @@ def radar_seeded(actors: list[Actor], groups: list[np.ndarray], active: np.ndarr
 
 def build_actor(index: int, gaussians: np.ndarray, trajectories: np.ndarray, opacities: np.ndarray,
                 timestamps: np.ndarray, cameras: tuple[np.ndarray, np.ndarray, int, int], radar_objects,
-                config: ActorConfig) -> Actor:
+                config: ActorConfig, radar: RadarChains | None = None) -> Actor:
     """The :class:`Actor` of ``gaussians`` (K,) from the dynamic set's ``trajectories`` (N, F, 3) and
     ``opacities`` (N, F) at the frames' ``timestamps`` (F,) seconds; ``cameras`` = (world_to_camera
-    (F, 4, 4), K, width, height)."""
+    (F, 4, 4), K, width, height). With ``radar`` chains and ``radar_velocity``, the velocity of its frames
+    of visibility is the radar's where a chain of it supports the actor (:func:`radar_velocity`)."""
     points, weights = trajectories[gaussians], opacities[gaussians]
     centroid, velocity, _ = opacity_track(points, weights, timestamps)
-    heading = headings(velocity, points)
     frames = visible_frames(points, weights, *cameras, config)
+    if radar is not None and config.radar_velocity and len(frames):
+        measured = radar_velocity(centroid, frames, radar, config.radar_gate, config.radar_chain_frames)
+        known = np.isfinite(measured[:, 0])
+        velocity[frames[known], :2] = measured[known]
+    heading = headings(velocity, points)
     reference = int(frames[len(frames) // 2]) if len(frames) else 0
     opaque = weights[:, reference] >= config.min_opacity  # the size of what renders there
     size = footprint_size(points[opaque if opaque.sum() >= 4 else slice(None), reference], float(heading[reference]))
@@ -374,7 +387,7 @@ def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None
     radar = None if radar_objects is None else radar_chains(radar_objects, timestamps, config)
 
     def build(groups: list[np.ndarray]) -> list[Actor]:
-        return [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config)
+        return [build_actor(k, g, trajectories, opacities, timestamps, cameras, radar_objects, config, radar)
                 for k, g in enumerate(groups)]
 
     active = np.flatnonzero(moving_mask(trajectories, opacities, config))

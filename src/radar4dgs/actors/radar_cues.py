@@ -112,6 +112,22 @@ def main_chain(supported: np.ndarray) -> int:
     return int(np.bincount(hits).argmax()) if len(hits) else -1
 
 
+def radar_velocity(centroid: np.ndarray, frames: np.ndarray, chains: RadarChains, gate: float,
+                   min_frames: int) -> np.ndarray:
+    """(len(frames), 2) planar velocity (m/s) that the radar measured for a body with track ``centroid``
+    (F, 3) at ``frames``, NaN where none: the (mean) velocity of the objects of the chains that support
+    it (:func:`support`) in at least ``min_frames`` frames or most often. Doppler measures the velocity;
+    the deformation field of a short training learns it only roughly."""
+    supported = support(centroid, frames, chains, gate)
+    counts = np.bincount(supported[supported >= 0], minlength=1)
+    trusted = set(np.flatnonzero(counts >= min_frames).tolist()) | {main_chain(supported)}
+    out = np.full((len(frames), 2), np.nan)
+    for k, (f, chain) in enumerate(zip(frames, supported, strict=True)):
+        if chain >= 0 and chain in trusted:
+            out[k] = chains.velocities[f][chains.chain[f] == chain].mean(axis=0)
+    return out
+
+
 def distinct_objects(chain_a: int, chain_b: int, chains: RadarChains) -> bool:
     """Whether two confirmed chains are two objects seen at the same time (so pieces on them never merge);
     chains never seen together may be one object the tracker lost in between."""
