@@ -127,6 +127,19 @@ def pose_errors(truth_scene, estimated: dict[int, np.ndarray]) -> dict[str, floa
             "translation_without_common_offset_m": float(np.linalg.norm(offsets - offsets.mean(0), axis=1).mean())}
 
 
+def smoothed_training_poses(scene) -> dict[int, np.ndarray]:
+    """The training cameras moved onto their smoothed trajectory (PoseRefineConfig.smooth_trajectory:
+    where refinement starts, before any image is seen)."""
+    import torch
+
+    from radar4dgs.model.pose_refine import se3_exp, trajectory_target
+
+    w2c = np.stack([scene.world_to_camera(i) for i in scene.train_indices])
+    times = np.array([scene.frames[i].timestamp for i in scene.train_indices])
+    moved = se3_exp(torch.as_tensor(trajectory_target(times, w2c))).numpy() @ w2c
+    return dict(zip(scene.train_indices, moved, strict=True))
+
+
 def true_corrections(truth_scene, noisy_scene) -> dict[int, np.ndarray]:
     """Per training frame, the twist (rho m, omega rad) that moves the noisy camera onto the true one
     (``w2c_true = exp(xi) @ w2c_noisy``; first order: rho from the translation, omega from the
@@ -219,7 +232,8 @@ def run_seed(seed: int, args: argparse.Namespace) -> dict:
     noisy_scene = read_scene(noisy)
     result: dict = {"seed": seed, "tuning": seed == 1,
                     "pose_error_before": pose_errors(truth, {i: noisy_scene.world_to_camera(i)
-                                                             for i in truth.train_indices})}
+                                                             for i in truth.train_indices}),
+                    "pose_error_smoothed": pose_errors(truth, smoothed_training_poses(noisy_scene))}
     cells = {"exact": (exact, "off", "off"), "exact-refined": (exact, "on", "off"), "noisy": (noisy, "off", "off"),
              "noisy-refined": (noisy, "on", "off"), "exposed": (exposed, "off", "off"),
              "exposed-compensated": (exposed, "off", "on")}

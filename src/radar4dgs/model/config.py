@@ -222,11 +222,16 @@ class PoseRefineConfig:
     lr_final_ratio: float = 0.1
     # Fraction of the run before the poses learn: the scene must look like something first.
     warmup: float = 0.2
-    # Weight of the mean squared difference of consecutive training frames' corrections (m^2 and
-    # rad^2): odometry drifts smoothly, independent noise does not.
+    # Start the corrections at, and pull them toward, the correction that puts each training camera
+    # on a smoothing spline of the recorded camera centres over time (its weight chosen by
+    # generalised cross-validation; model.pose_refine.trajectory_target): a car's path is smooth at
+    # 10 Hz, per-frame pose noise is not, and the images pin a camera's forward position poorly.
+    # False: start at and pull toward the recorded poses.
+    smooth_trajectory: bool = True
+    # Weight of the mean squared difference of consecutive training frames' deviations from that
+    # target (m^2 and rad^2): what the images add on top should drift smoothly.
     smooth_weight: float = 0.01
-    # Weight of the mean squared correction (the gauge: shifting every camera and the scene
-    # together changes no training image).
+    # Weight of the mean squared deviation of the corrections from the target.
     prior_weight: float = 0.01
     # After every step, subtract the mean correction over the frames (and the mean colour
     # transform): the refined trajectory keeps the recorded one's mean and the scene's colours are
@@ -341,6 +346,13 @@ class TrainConfig:
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
     # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
     dynamic_lifespan_reference_px: float = 0.0
+    # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
+    # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
+    # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
+    # give no image gradient (every Gaussian learns elsewhere, as stage 1) and a render with the
+    # static Gaussians frozen, scored on every pixel (the dynamic ones learn the cars). False: the
+    # static Gaussians learn on every pixel in stage 3, as before.
+    static_outside_masks: bool = False
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).

@@ -9,10 +9,16 @@ so a zero correction is the recorded pose, and a correction reads directly as "t
 ``rho`` metres and ``|omega|`` radians off, in its own axes". The same correction applies to the
 sky's ray directions (:func:`corrected_directions`), so the sky map turns with the camera.
 
-Regularisers: ``smoothness`` (the mean squared difference of consecutive frames' corrections:
-odometry errors drift slowly, so a trajectory correction is smooth) and ``prior`` (the mean
-squared correction: fixes the gauge, since moving every camera and the scene together changes
-no training image).
+The trajectory prior: a car's path at 10 Hz is smooth, the noise of its recorded poses is not
+(per-frame jitter), and the images pin a camera's forward position poorly (a 0.1 m step along the
+optical axis changes a frame's L1 a fifth as much as one sideways). So the corrections start at,
+and a prior (``prior``, mean squared deviation) pulls them toward, :func:`trajectory_target`: the
+correction that puts each camera centre on a smoothing spline of the recorded centres over time
+(scipy's ``make_smoothing_spline``, its weight chosen by generalised cross-validation, so a
+recorded trajectory that is already smooth is kept and real turns are followed). ``smoothness``
+(the mean squared difference of consecutive frames' deviations from that target) lets the images
+add only a slowly varying correction (drift) on top. Without a target (all zeros) the prior pulls
+toward the recorded poses.
 
 Why a hand-written exponential: pytorch3d (which has ``se3_exp_map``) is not a dependency; the
 closed form (Rodrigues for the rotation, the left Jacobian ``V`` for the translation) is a dozen
@@ -25,6 +31,8 @@ from typing import Any, Mapping
 
 import numpy as np
 import torch
+from scipy.interpolate import make_smoothing_spline
+from scipy.spatial.transform import Rotation
 from torch import Tensor, nn
 
 # Below this angle (rad) the coefficients of the exponential use their Taylor series (to t^4:
@@ -96,13 +104,53 @@ def corrected_directions(directions: Tensor, world_to_camera: Tensor, delta: Ten
     return directions + directions @ change.transpose(0, 1)
 
 
-def interpolate_corrections(train_times: np.ndarray, corrections: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """(M, 6) corrections at ``times`` (M,) interpolated linearly in time between the neighbouring
-    training frames' ``corrections`` (N, 6) at ``train_times`` (N,), held at the ends. Linear in
-    the twist is the small-angle interpolation of the two poses' corrections."""
-    train_times = np.asarray(train_times, dtype=np.float64)
-    corrections = np.asarray(corrections, dtype=np.float64)
-    return np.stack([np.interp(times, train_times, corrections[:, j]) for j in range(6)], axis=1)
+def smoothed_series(times: np.ndarray, values: np.ndarray, at: np.ndarray | None = None) -> np.ndarray:
+    """(M, K) values at ``at`` (M,) (default ``times``) of a cubic smoothing spline per column
+    through ``values`` (N, K) sampled at ``times`` (N,), its weight chosen by generalised
+    cross-validation (scipy ``make_smoothing_spline``): independent noise is averaged out, a smooth
+    series is kept. Fewer than 5 distinct times: linear interpolation, held at the ends."""
+    times = np.asarray(times, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64).reshape(len(times), -1)
+    at = times if at is None else np.asarray(at, dtype=np.float64)
+    order = np.argsort(times, kind="stable")
+    x, y = times[order], values[order]
+    if len(x) < 5 or np.any(np.diff(x) <= 0):
+        return np.stack([np.interp(at, x, y[:, j]) for j in range(y.shape[1])], axis=1)
+    # One spline per column: each axis gets its own weight (along-track and sideways differ).
+    return np.stack([make_smoothing_spline(x, y[:, j])(at) for j in range(y.shape[1])], axis=1)
+
+
+def camera_centres(world_to_camera: np.ndarray) -> np.ndarray:
+    """(N, 3) camera centres ``-R^T t`` of (N, 4, 4) world-to-camera poses."""
+    w2c = np.asarray(world_to_camera, dtype=np.float64)
+    return -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])
+
+
+def trajectory_target(times: np.ndarray, world_to_camera: np.ndarray) -> np.ndarray:
+    """(N, 6) corrections ``(rho, 0)`` that move each recorded camera (N, 4, 4) onto the smoothed
+    trajectory of the camera centres over ``times`` (N,) (:func:`smoothed_series`), its orientation
+    unchanged: with ``omega = 0`` the corrected centre is ``c - R^T rho``, so ``rho = -R (s - c)``."""
+    w2c = np.asarray(world_to_camera, dtype=np.float64)
+    centres = camera_centres(w2c)
+    smooth = smoothed_series(times, centres)
+    rho = -np.einsum("nij,nj->ni", w2c[:, :3, :3], smooth - centres)
+    return np.concatenate([rho, np.zeros_like(rho)], axis=1)
+
+
+def smoothed_poses(train_times: np.ndarray, world_to_camera: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(M, 4, 4) world-to-camera poses at ``times`` (M,) on the smoothed trajectory through the
+    (N, 4, 4) cameras at ``train_times`` (N,): the centre from :func:`smoothed_series` of the
+    centres, the orientation from the same smoothing of the rotation vectors relative to the
+    middle camera (a car turns by far less than 180 degrees in a clip)."""
+    w2c = np.asarray(world_to_camera, dtype=np.float64)
+    reference = Rotation.from_matrix(w2c[len(w2c) // 2, :3, :3])
+    relative = (Rotation.from_matrix(w2c[:, :3, :3]) * reference.inv()).as_rotvec()
+    rotations = (Rotation.from_rotvec(smoothed_series(train_times, relative, times)) * reference).as_matrix()
+    centres = smoothed_series(train_times, camera_centres(w2c), times)
+    out = np.tile(np.eye(4), (len(centres), 1, 1))
+    out[:, :3, :3] = rotations
+    out[:, :3, 3] = -np.einsum("nij,nj->ni", rotations, centres)
+    return out
 
 
 def pose_error(estimated: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -128,14 +176,20 @@ def correction_summary(corrections: np.ndarray) -> dict[str, float]:
 
 
 class PoseCorrections(nn.Module):
-    """The zero-initialised corrections of N training frames (rows in the order of the scene's
-    ``train_indices``): ``translation`` (N, 3) m and ``rotation`` (N, 3) rad, two tensors so that
-    Adam gives each its own rate (its step is about the rate whatever the gradient's scale)."""
+    """The corrections of N training frames (rows in the order of the scene's ``train_indices``):
+    ``translation`` (N, 3) m and ``rotation`` (N, 3) rad, two tensors so that Adam gives each its
+    own rate (its step is about the rate whatever the gradient's scale). They start at ``target``
+    (N, 6) (:func:`trajectory_target`; zeros when None: the recorded poses), which the regularisers
+    keep them near."""
 
-    def __init__(self, num_frames: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
+    def __init__(self, num_frames: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
+                 target: Any = None):
         super().__init__()
-        self.translation = nn.Parameter(torch.zeros(num_frames, 3, device=device, dtype=dtype))
-        self.rotation = nn.Parameter(torch.zeros(num_frames, 3, device=device, dtype=dtype))
+        target = torch.zeros(num_frames, 6) if target is None else torch.as_tensor(target).reshape(num_frames, 6)
+        target = target.to(device=device, dtype=dtype)
+        self.register_buffer("target", target)
+        self.translation = nn.Parameter(target[:, :3].clone())
+        self.rotation = nn.Parameter(target[:, 3:].clone())
 
     def __len__(self) -> int:
         return int(self.translation.shape[0])
@@ -156,22 +210,25 @@ class PoseCorrections(nn.Module):
 
     @torch.no_grad()
     def remove_mean(self) -> None:
-        """Subtract the mean correction over the frames (in camera axes; the same axes for a
-        straight drive, a first-order gauge for a turning one): the refined trajectory keeps the
-        recorded one's mean, as moving every camera and the scene together changes no image."""
-        self.translation -= self.translation.mean(0)
-        self.rotation -= self.rotation.mean(0)
+        """Subtract the mean deviation from the target over the frames (in camera axes; the same
+        axes for a straight drive, a first-order gauge for a turning one): the refined trajectory
+        keeps the target's mean (the recorded one's: a smoothing spline's residuals sum to zero),
+        as moving every camera and the scene together changes no image."""
+        self.translation -= (self.translation - self.target[:, :3]).mean(0)
+        self.rotation -= (self.rotation - self.target[:, 3:]).mean(0)
 
     def smoothness(self) -> Tensor:
-        """Mean squared difference of consecutive rows' corrections (0 for fewer than 2 rows)."""
-        xi = self.xi
-        if len(xi) < 2:
-            return xi.sum() * 0.0
-        return ((xi[1:] - xi[:-1]) ** 2).sum(-1).mean()
+        """Mean squared difference of consecutive rows' deviations from the target (0 for fewer
+        than 2 rows)."""
+        deviation = self.xi - self.target
+        if len(deviation) < 2:
+            return deviation.sum() * 0.0
+        return ((deviation[1:] - deviation[:-1]) ** 2).sum(-1).mean()
 
     def prior(self) -> Tensor:
-        """Mean squared correction (pulls the unobserved gauge back to the recorded poses)."""
-        return (self.xi ** 2).sum(-1).mean()
+        """Mean squared deviation of the corrections from the target (pulls the poses the images
+        pin poorly, such as the forward position, to the smoothed trajectory)."""
+        return ((self.xi - self.target) ** 2).sum(-1).mean()
 
     def param_groups(self, translation_lr: float, rotation_lr: float) -> list[dict[str, Any]]:
         """Adam groups named ``poses.translation`` and ``poses.rotation``."""
@@ -179,12 +236,14 @@ class PoseCorrections(nn.Module):
                 {"params": [self.rotation], "lr": rotation_lr, "name": "poses.rotation"}]
 
     def state(self) -> dict[str, Tensor]:
-        return {"translation": self.translation.detach().cpu(), "rotation": self.rotation.detach().cpu()}
+        return {"translation": self.translation.detach().cpu(), "rotation": self.rotation.detach().cpu(),
+                "target": self.target.detach().cpu()}
 
     @classmethod
     def from_state(cls, state: Mapping[str, Tensor], device: torch.device | str = "cpu",
                    dtype: torch.dtype = torch.float32) -> "PoseCorrections":
-        out = cls(len(state["translation"]), device, dtype)
+        """The corrections of :meth:`state` (a checkpoint without a target: zeros, as it was trained)."""
+        out = cls(len(state["translation"]), device, dtype, state.get("target"))
         with torch.no_grad():
             out.translation.copy_(state["translation"].to(out.translation))
             out.rotation.copy_(state["rotation"].to(out.rotation))

@@ -35,7 +35,7 @@ from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames
-from radar4dgs.model.pose_refine import PoseCorrections, corrected_directions, refinement_switches
+from radar4dgs.model.pose_refine import PoseCorrections, corrected_directions, refinement_switches, trajectory_target
 from radar4dgs.model.run import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
@@ -62,7 +62,7 @@ from radar4dgs.train.model_init import (
     speed_scaled_lifespans,
     with_lifespans,
 )
-from radar4dgs.train.objective import image_losses, motion_losses, refinement_losses, total_loss
+from radar4dgs.train.objective import image_losses, image_phase, motion_losses, refinement_losses, total_loss
 from radar4dgs.train.optimizers import (
     make_optimizer,
     make_optimizers,
@@ -218,12 +218,20 @@ class Trainer:
         n, saved = len(self.train_indices), saved or {}
         if poses_on:
             state.poses = PoseCorrections.from_state(saved["poses"], self.device, self.dtype) \
-                if saved.get("poses") is not None else PoseCorrections(n, self.device, self.dtype)
+                if saved.get("poses") is not None else PoseCorrections(n, self.device, self.dtype, self._pose_target())
         if appearance_on:
             state.appearance = FrameAppearance.from_state(saved["appearance"], self.device, self.dtype) \
                 if saved.get("appearance") is not None else FrameAppearance(n, self.device, self.dtype)
         state.optimizers.update(make_refine_optimizers(state.poses, state.appearance, self.config))
         return state
+
+    def _pose_target(self) -> np.ndarray | None:
+        """(N, 6) where the training frames' pose corrections start and are pulled to: onto the
+        smoothed trajectory (``poses.smooth_trajectory``), else None (the recorded poses)."""
+        if not self.config.poses.smooth_trajectory:
+            return None
+        times = np.array([self.scene.frames[i].timestamp for i in self.train_indices])
+        return trajectory_target(times, np.stack([self.scene.world_to_camera(i) for i in self.train_indices]))
 
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
@@ -383,14 +391,15 @@ class Trainer:
             keep = keep.to(self.device)
             scale = 1.0 / (1.0 - config.optim.dropout)
         view, directions = self._camera(state, row, target)
+        ignore_dynamic, detach_static = image_phase(config, stage, step)
         render = model.render(view, config.raster, directions, keep, scale,
-                              include_dynamic=with_dynamic, detach_static=ours and stage == 2)
+                              include_dynamic=with_dynamic, detach_static=detach_static)
         if state.appearance is not None:
             render = {**render, "rgb": state.appearance(render["rgb"], row)}
         means2d = render["meta"]["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
-        losses = image_losses(render, target, config, stage, ignore_dynamic=ours and stage == 1)
+        losses = image_losses(render, target, config, stage, ignore_dynamic=ignore_dynamic)
         if ours and self.motion is not None:
             losses.update(motion_losses(model.field, self.motion, config.losses.motion_batch, generator,
                                         self.device, self.dtype))
@@ -400,7 +409,7 @@ class Trainer:
         for optimizer in state.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        trainable = ["sky", "field", "offsets", "appearance"] + (["static"] if not (ours and stage == 2) else []) + \
+        trainable = ["sky", "field", "offsets", "appearance"] + (["static"] if not detach_static else []) + \
             (["dynamic"] if with_dynamic else []) + (["poses"] if pose_lr_scale(config, step) > 0 else [])
         for name in trainable:
             if name in state.optimizers:
