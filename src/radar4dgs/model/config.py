@@ -346,6 +346,13 @@ class TrainConfig:
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
     # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
     dynamic_lifespan_reference_px: float = 0.0
+    # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
+    # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
+    # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
+    # give no image gradient (every Gaussian learns elsewhere, as stage 1) and a render with the
+    # static Gaussians frozen, scored on every pixel (the dynamic ones learn the cars). False: the
+    # static Gaussians learn on every pixel in stage 3, as before.
+    static_outside_masks: bool = False
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).

@@ -37,6 +37,20 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
     return losses
 
 
+def image_phase(config: TrainConfig, stage: int, step: int) -> tuple[bool, bool]:
+    """``(ignore_dynamic, detach_static)`` of iteration ``step`` of ``stage``: how its render is
+    scored and what it trains. Stage 1 of the full method ignores the dynamic-mask pixels and
+    stage 2 freezes the static Gaussians. In stage 3 with ``config.static_outside_masks`` odd
+    iterations ignore the dynamic-mask pixels and even ones freeze the static Gaussians, so no
+    dynamic-mask pixel ever gives a static Gaussian an image gradient; without it, neither. (Odd:
+    densification runs after iterations ``k * densify.every - 1``, which must train the static set.)"""
+    if config.method != "ours":
+        return False, False
+    if stage == 3 and config.static_outside_masks:
+        return step % 2 == 1, step % 2 == 0
+    return stage == 1, stage == 2
+
+
 def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
                   generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
     """``L_flow``, ``L_rad`` and ``L_vel`` (each when it has samples) on a random minibatch of the

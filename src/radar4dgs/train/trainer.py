@@ -62,7 +62,7 @@ from radar4dgs.train.model_init import (
     speed_scaled_lifespans,
     with_lifespans,
 )
-from radar4dgs.train.objective import image_losses, motion_losses, refinement_losses, total_loss
+from radar4dgs.train.objective import image_losses, image_phase, motion_losses, refinement_losses, total_loss
 from radar4dgs.train.optimizers import (
     make_optimizer,
     make_optimizers,
@@ -391,14 +391,15 @@ class Trainer:
             keep = keep.to(self.device)
             scale = 1.0 / (1.0 - config.optim.dropout)
         view, directions = self._camera(state, row, target)
+        ignore_dynamic, detach_static = image_phase(config, stage, step)
         render = model.render(view, config.raster, directions, keep, scale,
-                              include_dynamic=with_dynamic, detach_static=ours and stage == 2)
+                              include_dynamic=with_dynamic, detach_static=detach_static)
         if state.appearance is not None:
             render = {**render, "rgb": state.appearance(render["rgb"], row)}
         means2d = render["meta"]["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
-        losses = image_losses(render, target, config, stage, ignore_dynamic=ours and stage == 1)
+        losses = image_losses(render, target, config, stage, ignore_dynamic=ignore_dynamic)
         if ours and self.motion is not None:
             losses.update(motion_losses(model.field, self.motion, config.losses.motion_batch, generator,
                                         self.device, self.dtype))
@@ -408,7 +409,7 @@ class Trainer:
         for optimizer in state.optimizers.values():
             optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        trainable = ["sky", "field", "offsets", "appearance"] + (["static"] if not (ours and stage == 2) else []) + \
+        trainable = ["sky", "field", "offsets", "appearance"] + (["static"] if not detach_static else []) + \
             (["dynamic"] if with_dynamic else []) + (["poses"] if pose_lr_scale(config, step) > 0 else [])
         for name in trainable:
             if name in state.optimizers:
