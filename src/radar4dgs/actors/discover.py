@@ -19,12 +19,17 @@
    ``merge_lateral`` across it at the same velocity (medians over their common frames) are one body;
    so are pieces of which one takes over where the other stops (constant-velocity extrapolation over
    at most ``handover_seconds``). Side-by-side cars in adjacent lanes fail the lateral test.
-6. **Spurious-actor filter.** Actors seen in fewer than ``min_frames`` frames, or whose centroid moves
+6. **Radar cues** (:mod:`radar4dgs.actors.radar_cues`, when the prepared folder has radar objects):
+   pieces on one radar chain merge, pieces on two chains seen at the same time never link; actors the
+   radar supports in fewer than ``min_radar_frames`` frames are dropped; chains no actor took seed
+   actors from the free moving Gaussians along them; the velocity is the radar's where it saw the actor.
+7. **Spurious-actor filter.** Actors seen in fewer than ``min_frames`` frames, or whose centroid moves
    less than ``min_displacement`` between their first and last frame, are dropped.
-7. **Poses and radar.** Per frame: centroid and velocity (above), heading (the velocity's direction,
+8. **Poses and radar.** Per frame: centroid and velocity (above), heading (the velocity's direction,
    held while the actor is slower than 1 m/s), frames of visibility (there, and enough of its opacity
    in the camera's view), size and a class guess from the footprint of its opaque Gaussians, and the
-   radar objects (``<prepared>/radar/objects.json``) whose centroids fall inside its footprint.
+   radar objects (``<prepared>/radar/objects.json``) whose centroids fall inside the footprint of its
+   Gaussians that render there.
 """
 
 from __future__ import annotations
