@@ -3,7 +3,7 @@ dynamic scene-flow error on synthetic scenes for flow-only, radar-only, both, an
 objects' velocity term (both_velocity).
 
     python benchmarks/motion.py [--seeds 1 2 3 4 5] [--preset small] [--work /tmp/radar4dgs-motion-bench] [--oracle]
-                                [--traffic calm|realistic|rush] [--fps 10]
+                                [--traffic calm|realistic|rush] [--fps 10] [--frontend-only]
 
 Prints a table and writes benchmarks/results/motion.json (rewritten after every seed, so an
 interrupted run keeps the seeds it finished; motion-<traffic>[-<fps>hz].json for --traffic realistic or rush).
@@ -17,7 +17,9 @@ rush traffic at 10 Hz (fixed before any scene of that profile was made): 201-203
 fixed before any scene of it was made): 209-213, report only. The fit uses only prepared data: the radar front
 end, radar-scaled depth and the segmentation network's masks (`radar4dgs prepare`). With --oracle,
 depth and dynamic masks come from the scene's gt/ instead (an upper bound; written to
-motion-oracle.json unless --out is given).
+motion-oracle.json unless --out is given). With --frontend-only, no field is fitted: only the front
+end's 2-D flow, lifted scene flow and radar object velocity are scored (minutes instead of ~6 per
+seed; written to <name>-frontend.json).
 """
 
 from __future__ import annotations
@@ -31,7 +33,12 @@ import numpy as np
 import torch
 
 from radar4dgs.config import preset
-from radar4dgs.evaluate.frontend import object_velocity_metrics
+from radar4dgs.evaluate.frontend import (
+    OBJECT_MATCH_GATE,
+    OBJECT_MIN_RETURNS,
+    moving_ground_truth,
+    object_velocity_metrics,
+)
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
 from radar4dgs.io.scene import normalized_times, read_scene
@@ -40,6 +47,7 @@ from radar4dgs.motion.flow import prepare_flow
 from radar4dgs.motion.lift import backproject
 from radar4dgs.motion.metrics import motion_frontend_metrics
 from radar4dgs.motion.optical_flow import time_dis
+from radar4dgs.radar.objects import load_radar_objects
 from radar4dgs.train.fit_motion import FlowSamples, MotionConfig, evaluate_sceneflow, fit_field, run_fit, torch_threads
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
@@ -135,16 +143,22 @@ def main() -> None:
     parser.add_argument("--oracle", action="store_true", help="gt depth and masks instead of the prepared ones")
     parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="calm")
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
+    parser.add_argument("--frontend-only", action="store_true", help="score the front end only, fit no field")
     args = parser.parse_args()
     if args.out is None:
         name = ("motion" + ("" if args.traffic == "calm" else f"-{args.traffic}")
-                + ("" if args.fps is None else f"-{args.fps:g}hz") + ("-oracle" if args.oracle else ""))
+                + ("" if args.fps is None else f"-{args.fps:g}hz") + ("-oracle" if args.oracle else "")
+                + ("-frontend" if args.frontend_only else ""))
         args.out = RESULTS.with_name(name + ".json")
 
     report: dict = {"command": "python benchmarks/motion.py " + " ".join(
         ["--seeds", *map(str, args.seeds), "--preset", args.preset, "--traffic", args.traffic]
-        + (["--oracle"] if args.oracle else []) + ([] if args.fps is None else ["--fps", f"{args.fps:g}"])),
+        + (["--oracle"] if args.oracle else []) + ([] if args.fps is None else ["--fps", f"{args.fps:g}"])
+        + (["--frontend-only"] if args.frontend_only else [])),
         "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks)"}
+    if args.frontend_only:
+        run_frontend(args, report)
+        return
     report["roundtrip"] = roundtrip_errors()
     report["dis_ms_per_320x180_pair"] = {p: 1000 * time_dis(preset=p) for p in ("fast", "medium")}
     print("round trip (max |D^-1(D(x)) - x|, random weights, 100k points x 5 seeds):")
@@ -191,6 +205,74 @@ def main() -> None:
         atomic_write_json(args.out, report)
     print(json.dumps(report["summary"], indent=2))
     print(f"wrote {args.out}")
+
+
+def trusted_velocity_errors(scene, prepared: Path, max_std: float) -> dict:
+    """Velocity errors (m/s) of the radar objects that the velocity term trusts (>= 3 returns and
+    tracked velocity std ``sqrt(trace S) <= max_std``, FitConfig.velocity_max_std), matched to the
+    nearest moving ground-truth object as frontend-eval does; with their count and the share of
+    all scored objects they are."""
+    truth, errors, scored = moving_ground_truth(scene), [], 0
+    for i, objects in enumerate(load_radar_objects(prepared)):
+        places = [(np.asarray(o["poses"][i], dtype=np.float64)[:2, 3],
+                   np.asarray((o.get("velocities") or [o["velocity"]] * len(scene))[i], dtype=np.float64)[:2])
+                  for o in truth]
+        for obj in objects:
+            gaps = [float(np.linalg.norm(obj.centroid[:2] - p)) for p, _ in places]
+            if obj.num_returns < OBJECT_MIN_RETURNS or not gaps or min(gaps) > OBJECT_MATCH_GATE:
+                continue
+            scored += 1
+            if np.sqrt(max(float(np.trace(obj.velocity_covariance)), 0.0)) <= max_std:
+                errors.append(float(np.linalg.norm(obj.velocity[:2] - places[int(np.argmin(gaps))][1])))
+    return {"count": len(errors), "share": len(errors) / scored if scored else None,
+            "median": float(np.median(errors)) if errors else None,
+            "p90": float(np.percentile(errors, 90)) if errors else None}
+
+
+def run_frontend(args: argparse.Namespace, report: dict) -> None:
+    """--frontend-only: per seed, the image motion, the flow stage's 2-D and scene-flow errors and the
+    radar objects' velocity errors; no field is fitted."""
+    report["seeds"] = {}
+    for seed in args.seeds:
+        started = time.perf_counter()
+        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps)
+        scene = read_scene(scene_dir)
+        config = preset(MotionConfig, args.preset, flow={"depth_source": info["depth_source"],
+                                                         "mask_source": info["mask_source"]})
+        flow_summary = prepare_flow(scene, prepared, config.flow)
+        objects, _ = object_velocity_metrics(scene, prepared)
+        objects["trusted"] = trusted_velocity_errors(scene, prepared, config.fit.velocity_max_std)
+        entry = {**info, "image_motion_px": dynamic_motion_statistics(scene),
+                 "flow_seconds_per_call": flow_summary["flow_seconds_per_call"],
+                 "frontend": motion_frontend_metrics(scene, prepared), "radar_objects": objects,
+                 "seconds": time.perf_counter() - started}
+        report["seeds"][str(seed)] = entry
+        print(f"seed {seed} flow2d EPE {entry['frontend']['flow2d_epe_dynamic']:.2f} px, scene flow "
+              f"{entry['frontend']['sceneflow_epe_dynamic']:.3f} m, object velocity median "
+              f"{objects['object_velocity_error_median']:.2f} / p90 {objects['object_velocity_error_p90']:.2f} m/s "
+              f"(trusted {objects['trusted']['count']}: p90 {objects['trusted']['p90']:.2f})",
+              flush=True)
+        summarize_frontend(report)
+        atomic_write_json(args.out, report)
+    print(json.dumps(report["summary"], indent=2))
+    print(f"wrote {args.out}")
+
+
+def summarize_frontend(report: dict) -> None:
+    seeds = list(report["seeds"].values())
+    flow2d = [s["frontend"]["flow2d_epe_dynamic"] for s in seeds]
+    sceneflow = [s["frontend"]["sceneflow_epe_dynamic"] for s in seeds]
+    p90 = [s["radar_objects"]["object_velocity_error_p90"] for s in seeds]
+    report["summary"] = {
+        "seeds_done": len(seeds), "image_motion_p90_px": [s["image_motion_px"]["p90"] for s in seeds],
+        "flow2d_epe_dynamic_per_seed": flow2d, "flow2d_epe_dynamic_mean": float(np.mean(flow2d)),
+        "flow2d_le_2px_seeds": int(sum(v <= 2.0 for v in flow2d)),
+        "sceneflow_epe_dynamic_per_seed": sceneflow, "sceneflow_epe_dynamic_mean": float(np.mean(sceneflow)),
+        "object_velocity_error_median_per_seed": [s["radar_objects"]["object_velocity_error_median"] for s in seeds],
+        "object_velocity_error_p90_per_seed": p90,
+        "object_velocity_p90_le_0.5_seeds": int(sum(v is not None and v <= 0.5 for v in p90)),
+        "trusted_object_velocity_p90_per_seed": [s["radar_objects"]["trusted"]["p90"] for s in seeds],
+        "trusted_object_share_per_seed": [s["radar_objects"]["trusted"]["share"] for s in seeds]}
 
 
 def summarize(report: dict) -> None:
