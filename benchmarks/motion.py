@@ -179,6 +179,7 @@ def main() -> None:
                         fit={"radar_source": info["radar_source"]})
         flow_summary = prepare_flow(scene, prepared, config.flow)
         objects, _ = object_velocity_metrics(scene, prepared)
+        objects.update(object_velocity_breakdown(scene, prepared, config.fit.velocity_max_std))
         entry = {**info, "image_motion_px": motion, "flow_seconds_per_call": flow_summary["flow_seconds_per_call"],
                  "frontend": motion_frontend_metrics(scene, prepared), "radar_objects": objects}
         for mode, (use_flow, use_radar, use_velocity) in MODES.items():
@@ -207,26 +208,54 @@ def main() -> None:
     print(f"wrote {args.out}")
 
 
-def trusted_velocity_errors(scene, prepared: Path, max_std: float) -> dict:
-    """Velocity errors (m/s) of the radar objects that the velocity term trusts (>= 3 returns and
-    tracked velocity std ``sqrt(trace S) <= max_std``, FitConfig.velocity_max_std), matched to the
-    nearest moving ground-truth object as frontend-eval does; with their count and the share of
-    all scored objects they are."""
+# Why a radar object's tracked velocity is off by more than the 0.5 m/s target, first match wins.
+FAILURE_CLASSES = ("new track (<= 2 scans)", "another mover within 5 m", "turning (|yaw rate| > 0.05 rad/s)",
+                   "radial-only scan (narrow azimuth spread)", "other")
+
+
+def failure_class(age: int, gaps: np.ndarray, yaw_rate: float, observable: bool) -> str:
+    """The first of FAILURE_CLASSES that applies to a scored object: its track's age (scans), the
+    planar distances (m) to every moving ground-truth object, its match's yaw rate, its scan fit."""
+    if age <= 2:
+        return FAILURE_CLASSES[0]
+    if int((gaps < 5.0).sum()) > 1:
+        return FAILURE_CLASSES[1]
+    if abs(yaw_rate) > 0.05:
+        return FAILURE_CLASSES[2]
+    return FAILURE_CLASSES[3] if not observable else FAILURE_CLASSES[4]
+
+
+def object_velocity_breakdown(scene, prepared: Path, max_std: float) -> dict:
+    """The radar objects scored as frontend-eval does (>= 3 returns, matched to the nearest moving
+    ground-truth object within the gate): ``trusted``, the velocity errors (m/s) of those the
+    velocity term uses (tracked velocity std ``sqrt(trace S) <= max_std``, FitConfig.velocity_max_std)
+    with their count and share; ``failures``, per FAILURE_CLASSES, how many of all scored objects
+    fall in the class and how many of them miss 0.5 m/s."""
     truth, errors, scored = moving_ground_truth(scene), [], 0
+    failures = {name: [0, 0] for name in FAILURE_CLASSES}
+    ages: dict[int, int] = {}
     for i, objects in enumerate(load_radar_objects(prepared)):
         places = [(np.asarray(o["poses"][i], dtype=np.float64)[:2, 3],
                    np.asarray((o.get("velocities") or [o["velocity"]] * len(scene))[i], dtype=np.float64)[:2])
                   for o in truth]
         for obj in objects:
-            gaps = [float(np.linalg.norm(obj.centroid[:2] - p)) for p, _ in places]
-            if obj.num_returns < OBJECT_MIN_RETURNS or not gaps or min(gaps) > OBJECT_MATCH_GATE:
+            ages[obj.track] = ages.get(obj.track, 0) + 1
+            gaps = np.array([float(np.linalg.norm(obj.centroid[:2] - p)) for p, _ in places])
+            if obj.num_returns < OBJECT_MIN_RETURNS or not len(gaps) or gaps.min() > OBJECT_MATCH_GATE:
                 continue
             scored += 1
+            match = int(np.argmin(gaps))
+            error = float(np.linalg.norm(obj.velocity[:2] - places[match][1]))
             if np.sqrt(max(float(np.trace(obj.velocity_covariance)), 0.0)) <= max_std:
-                errors.append(float(np.linalg.norm(obj.velocity[:2] - places[int(np.argmin(gaps))][1])))
-    return {"count": len(errors), "share": len(errors) / scored if scored else None,
-            "median": float(np.median(errors)) if errors else None,
-            "p90": float(np.percentile(errors, 90)) if errors else None}
+                errors.append(error)
+            yaw = (truth[match].get("yaw_rates") or [0.0] * len(scene))[i]
+            counts = failures[failure_class(ages[obj.track], gaps, float(yaw), obj.observable)]
+            counts[0] += 1
+            counts[1] += error > 0.5
+    trusted = {"count": len(errors), "share": len(errors) / scored if scored else None,
+               "median": float(np.median(errors)) if errors else None,
+               "p90": float(np.percentile(errors, 90)) if errors else None}
+    return {"trusted": trusted, "failures": {k: {"objects": v[0], "above_0.5": v[1]} for k, v in failures.items()}}
 
 
 def run_frontend(args: argparse.Namespace, report: dict) -> None:
@@ -241,7 +270,7 @@ def run_frontend(args: argparse.Namespace, report: dict) -> None:
                                                          "mask_source": info["mask_source"]})
         flow_summary = prepare_flow(scene, prepared, config.flow)
         objects, _ = object_velocity_metrics(scene, prepared)
-        objects["trusted"] = trusted_velocity_errors(scene, prepared, config.fit.velocity_max_std)
+        objects.update(object_velocity_breakdown(scene, prepared, config.fit.velocity_max_std))
         entry = {**info, "image_motion_px": dynamic_motion_statistics(scene),
                  "flow_seconds_per_call": flow_summary["flow_seconds_per_call"],
                  "frontend": motion_frontend_metrics(scene, prepared), "radar_objects": objects,
@@ -271,8 +300,17 @@ def summarize_frontend(report: dict) -> None:
         "object_velocity_error_median_per_seed": [s["radar_objects"]["object_velocity_error_median"] for s in seeds],
         "object_velocity_error_p90_per_seed": p90,
         "object_velocity_p90_le_0.5_seeds": int(sum(v is not None and v <= 0.5 for v in p90)),
-        "trusted_object_velocity_p90_per_seed": [s["radar_objects"]["trusted"]["p90"] for s in seeds],
-        "trusted_object_share_per_seed": [s["radar_objects"]["trusted"]["share"] for s in seeds]}
+        **trusted_summary(seeds)}
+
+
+def trusted_summary(seeds: list[dict]) -> dict:
+    """The trusted objects' p90 and share per seed and the failure classes summed over the seeds."""
+    failures = {name: {"objects": sum(s["radar_objects"]["failures"][name]["objects"] for s in seeds),
+                       "above_0.5": sum(s["radar_objects"]["failures"][name]["above_0.5"] for s in seeds)}
+                for name in FAILURE_CLASSES}
+    return {"trusted_object_velocity_p90_per_seed": [s["radar_objects"]["trusted"]["p90"] for s in seeds],
+            "trusted_object_share_per_seed": [s["radar_objects"]["trusted"]["share"] for s in seeds],
+            "object_velocity_failures": failures}
 
 
 def summarize(report: dict) -> None:
@@ -289,6 +327,7 @@ def summarize(report: dict) -> None:
     velocity = [s["radar_objects"]["object_velocity_error_median"] for s in seeds]
     summary["object_velocity_error_median_per_seed"] = velocity
     summary["object_velocity_error_p90_per_seed"] = [s["radar_objects"]["object_velocity_error_p90"] for s in seeds]
+    summary.update(trusted_summary(seeds))
     both = summary["both_epe_mean"]
     summary["target_both_le_0.15"] = both is not None and both <= 0.15
     summary["target_both_beats_each"] = both is not None and all(

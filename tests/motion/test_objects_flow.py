@@ -15,7 +15,7 @@ from radar4dgs.config import preset
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import pair_scene_flow, prepare_flow
 from radar4dgs.motion.object_hints import ObjectHint, associate_components, predicted_targets
-from radar4dgs.motion.objects_flow import PairGeometry, object_flow
+from radar4dgs.motion.objects_flow import PairGeometry, choose_candidate, object_flow
 from radar4dgs.motion.optical_flow import dis_flow
 from radar4dgs.motion.rigid import rigid_object_flow
 
@@ -174,3 +174,22 @@ def test_the_flow_stage_uses_the_prepared_radar_objects(motion_scene, tmp_path):
     assert summary["radar_objects"] == "used"
     assert sum(summary["models"][m] for m in ("dense", "translation", "radar", "matched")) > 0
     assert sum(p["models"]["no_radar"] for p in summary["per_pair"]) == summary["models"]["no_radar"]
+
+
+
+@pytest.mark.parametrize(("matched_greys", "expected", "error"), [((109, 110), "radar", 10.0),
+                                                                  ((108, 108), "matched", 8.0)])
+def test_a_match_must_clearly_beat_the_radar_prediction(matched_greys, expected, error):
+    # Frame a is flat grey 100 on a 10 x 10 object; each candidate lands on a patch of b whose grey
+    # sets its error exactly: dense 30, radar 10, the match 9.5 (half 109, half 110: within accept =
+    # 0.9 of the radar prediction's, the prediction stays) or 8 (clearly better: the match wins).
+    gray_a = np.full((30, 120), 100, np.uint8)
+    gray_b = np.full((30, 120), 100, np.uint8)
+    v, u = np.mgrid[0:10, 0:10]
+    pixels = np.stack([u.ravel() + 5, v.ravel() + 5], axis=1)
+    gray_b[5:15, 25:35], gray_b[5:15, 55:65] = 130, 110
+    gray_b[5:15, 85:90], gray_b[5:15, 90:95] = matched_greys
+    candidates = {name: (pixels + [offset, 0]).astype(np.float64)
+                  for name, offset in (("dense", 20), ("radar", 50), ("matched", 80))}
+    model, found = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
+    assert model == expected and found == pytest.approx(error)

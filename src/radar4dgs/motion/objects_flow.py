@@ -122,7 +122,11 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
 def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
                      candidates: dict[str, np.ndarray], accept: float, min_inside: float) -> tuple[str, float]:
     """(model, its mean abs grey error): the candidate explaining the images best; "dense" unless
-    another's error is below ``accept`` x the dense flow's (the dense flow is finer where right).
+    another's error is below ``accept`` x the dense flow's (the dense flow is finer where right),
+    and "radar" over a translation or match unless that one's error is below ``accept`` x the radar
+    prediction's: a search finds SOME shift with a lower error on a car's uniform paint (rush 5 Hz
+    tuning seed 214: a match 13 px off the truth scored 10.6 grey levels against the 2.8 px
+    prediction's 10.9), while the prediction carries the tracked velocity.
 
     A radar prediction that takes the object out of view (a car passing the camera) cannot be
     checked in the images and wins: the candidates that keep it in view are the failures (DIS
@@ -134,6 +138,8 @@ def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
     if "radar" in errors and errors["radar"] == np.inf:
         return "radar", np.inf
     best = min(errors, key=errors.__getitem__)
+    if best in ("translation", "matched") and "radar" in errors and not errors[best] < accept * errors["radar"]:
+        best = "radar"
     if best != "dense" and not errors[best] < accept * errors["dense"]:
         best = "dense"
     return best, errors[best]
