@@ -118,3 +118,32 @@ def test_a_weak_mover_on_a_radar_track_is_found(oracle, oracle_paths):
     slow = next(a for a in drifting if set(a.gaussians) <= set(weak))
     assert np.abs(slow.velocity[slow.frames, :2] - mover.velocity[slow.frames, :2]).max() > 0.01
 
+
+
+def test_radar_chains_split_and_merge_pieces():
+    from radar4dgs.actors.discover import Actor, headings, merge_groups
+
+    t = np.arange(21) * 0.1
+    every = np.arange(21)
+
+    def piece(x: np.ndarray, y: float) -> Actor:
+        centroid = np.stack([x, np.full_like(x, y), np.zeros_like(x)], axis=1)
+        velocity = np.gradient(centroid, t, axis=0)
+        return Actor(0, np.arange(3), every, centroid, velocity, headings(velocity, np.zeros((1, 21, 3))),
+                     (4.0, 1.8, 1.5), "car")
+
+    # Two cars 1 m apart across (a junction: one turning in beside the other) at the same speed: one body
+    # by their motion. The radar sees two objects (tracks 1 and 2, 2.8 m apart: two chains).
+    pieces = [piece(10 * t, 0.0), piece(10 * t, 1.0)]
+    frames = [[_object(1, (10 * s - 0.4, -0.9), (10, 0)), _object(2, (10 * s + 0.4, 1.8), (10, 0))] for s in t]
+    chains = radar_chains(frames, t, ActorConfig())
+    main = [int(chains.chain[0][0]), int(chains.chain[0][1])]
+    assert len(set(merge_groups(pieces, t, ActorConfig()))) == 1
+    assert len(set(merge_groups(pieces, t, ActorConfig(), (main, chains)))) == 2
+    # The front and the rear of one long bus, 9 m apart (beyond the 5 m merge distance): two bodies by
+    # their motion, one object for the radar.
+    bus = [piece(10 * t + 4.5, 0.0), piece(10 * t - 4.5, 0.0)]
+    one = radar_chains([[_object(7, (10 * s, 0.0), (10, 0))] for s in t], t, ActorConfig())
+    assert len(set(merge_groups(bus, t, ActorConfig()))) == 2
+    chain = int(one.chain[0][0])
+    assert len(set(merge_groups(bus, t, ActorConfig(), ([chain, chain], one)))) == 1
