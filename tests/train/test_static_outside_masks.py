@@ -146,3 +146,17 @@ def test_trainer_alternates_in_stage_3(prepared, tmp_path, monkeypatch, rule):
         assert all(a != b for a, b in zip(stage3[:-1], stage3[1:], strict=True))  # alternating
     else:
         assert set(stage3) == {(False, False, True)}
+
+
+def test_runs_saved_before_the_option_count_as_training_static_on_every_pixel():
+    import dataclasses
+
+    from radar4dgs.config import to_dict
+    from radar4dgs.train.run_config import run_config_difference
+
+    config = preset(TrainConfig, "tiny")
+    assert config.static_outside_masks
+    saved = to_dict(config)
+    del saved["static_outside_masks"]
+    assert any("static_outside_masks" in line for line in run_config_difference(saved, config))
+    assert not run_config_difference(saved, dataclasses.replace(config, static_outside_masks=False))

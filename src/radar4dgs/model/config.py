@@ -356,8 +356,10 @@ class TrainConfig:
     # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
     # give no image gradient (every Gaussian learns elsewhere, as stage 1) and a render with the
     # static Gaussians frozen, scored on every pixel (the dynamic ones learn the cars). False: the
-    # static Gaussians learn on every pixel in stage 3, as before.
-    static_outside_masks: bool = False
+    # static Gaussians learn on every pixel in stage 3, as before. Realistic-traffic seed 101
+    # (small, 600 iterations): the static layer under the removed cars 17.5 dB against 16.5,
+    # novel-view PSNR 24.42 against 24.79 dB, PSNR* 18.86 against 18.96 (half the static updates).
+    static_outside_masks: bool = True
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
     # Render and supervise at this fraction of the scene resolution (1 = full).

@@ -14,10 +14,13 @@ RUNTIME_FIELDS = ("threads", "device", "frame_cache")
 def with_legacy_values(saved: dict) -> dict:
     """A saved TrainConfig dict with the fields it predates set to what a run of its time did,
     where that is not the field's default: no life span (``dynamic_lifespan`` 0), dynamic
-    pixels on the background's grid (``init.dynamic_pixel_stride`` = ``init.pixel_stride``) and
-    no pose or appearance refinement (``poses.refine`` / ``poses.appearance`` "off")."""
+    pixels on the background's grid (``init.dynamic_pixel_stride`` = ``init.pixel_stride``), no
+    pose or appearance refinement (``poses.refine`` / ``poses.appearance`` "off") and static
+    Gaussians trained on every pixel in stage 3 (``static_outside_masks`` False)."""
     out = dict(saved)
     out.setdefault("dynamic_lifespan", 0.0)
+    # Runs from before the static layer was kept off the dynamic masks in stage 3 (issue 24).
+    out.setdefault("static_outside_masks", False)
     # Runs from before pose refinement and exposure compensation (issue 27) had neither.
     out.setdefault("poses", {"refine": "off", "appearance": "off"})
     init = out.get("init")
