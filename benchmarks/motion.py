@@ -14,7 +14,8 @@ Seeds, fixed before any tuning (issue 21): calm traffic 1-5 (6-8 held out); real
 10 Hz: 101-105 to tune on, 106-110 only to report; realistic traffic at 5 Hz: 111-112, report only;
 rush traffic at 10 Hz (fixed before any scene of that profile was made): 201-203 to tune on,
 204-208 only to report; rush traffic at 5 Hz (the hard set: twice the per-frame motion of 10 Hz;
-fixed before any scene of it was made): 209-213, report only. The fit uses only prepared data: the radar front
+fixed before any scene of it was made): 209-213, report only, and 214-215 to tune on (fixed later,
+before any scene of them was made). The fit uses only prepared data: the radar front
 end, radar-scaled depth and the segmentation network's masks (`radar4dgs prepare`). With --oracle,
 depth and dynamic masks come from the scene's gt/ instead (an upper bound; written to
 motion-oracle.json unless --out is given). With --frontend-only, no field is fitted: only the front
