@@ -67,7 +67,7 @@ def _run_radar(scene: Scene, out_dir: Path, config: RadarConfig, progress: Calla
     from radar4dgs.radar.process import prepare_radar
 
     summary = prepare_radar(scene, out_dir, config, progress)
-    return {"frames": summary["num_frames"], "ok": summary["num_ok"]}
+    return {"frames": summary["num_frames"], "ok": summary["num_ok"], "time_sync": summary["time_sync"]["action"]}
 
 
 def _run_depth(scene: Scene, out_dir: Path, config: DepthConfig, progress: Callable) -> dict:
@@ -205,8 +205,13 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
             return tqdm(items, total=total, desc=_name, unit="item", disable=not progress)
 
         run = stage.run if scene.has_radar else RADARLESS_RUNNERS.get(stage.name, stage.run)
+        # The stages after the radar's see its scans re-stamped by the clock offset it applied.
+        from radar4dgs.radar.sync import prepared_synced_scene
+
+        stage_scene = scene if stage.name == "radar" or not scene.has_radar else prepared_synced_scene(
+            scene, prepared / "radar")
         with atomic_directory(stage_dir, overwrite=True) as tmp:
-            result = run(scene, tmp, stage_config, bar)
+            result = run(stage_scene, tmp, stage_config, bar)
             atomic_write_json(tmp / STAGE_MARKER, {"stage": stage.name, "config": to_dict(stage_config),
                                                    "scene": fingerprint, "result": result})
         status[stage.name] = "ran"
@@ -214,12 +219,14 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
 
 
 def _radarless_note(stage_dir: Path) -> str:
-    """", the scene has no radar: <what the stage did instead>" for a radar-less scene's stage."""
+    """", the scene has no radar: <what the stage did instead>" for a radar-less scene's stage, and
+    the radar stage's clock-offset action ("time sync: applied ...")."""
     try:
         note = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"].get("no_radar")
+        sync = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"].get("time_sync")
     except (OSError, ValueError, KeyError, AttributeError):
         return ""
-    return f" (the scene has no radar: {note})" if note else ""
+    return (f" (the scene has no radar: {note})" if note else "") + (f" (time sync: {sync})" if sync else "")
 
 
 @dataclass

@@ -154,6 +154,16 @@ class RadarConfig:
     smoothing: Literal["none", "median", "mean"] = "none"
     # Scene processing: smoothing window in frames (odd).
     smoothing_window: int = 5
+    # Scene processing: camera-radar clock offset (radar/sync.py, estimated from the Doppler speed against
+    # the speed of the camera-time poses; always reported in summary.json "time_sync"). "auto" re-stamps
+    # the radar scans by it (and places them at the ego pose of the corrected time) when it is
+    # observable and larger than `sync_threshold`; "off" only reports it.
+    sync: Literal["auto", "off"] = "auto"
+    # Offsets up to this magnitude (s) are left alone: 10 ms moves a scan by 0.3 m at 30 m/s, and the
+    # estimate's own error on the synthetic scenes is a few ms.
+    sync_threshold: float = 0.01
+    # The estimate scans offsets in [-sync_max_offset, sync_max_offset] (s).
+    sync_max_offset: float = 0.2
     # Scene processing: dynamic points grouped into objects with a planar velocity each, tracked
     # across frames (<prepared>/radar/objects.json).
     objects: RadarObjectConfig = field(default_factory=RadarObjectConfig)

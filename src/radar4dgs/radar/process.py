@@ -5,7 +5,10 @@ Outputs (``out_dir`` is ``<prepared>/radar``):
     ``<frame>.npz``: ``ego_velocity`` (3,) float64 radar axes (smoothed when enabled), ``covariance``
     (3, 3), ``ok`` (bool, the frame's own fit), ``inliers`` (N,) bool, ``dynamic`` (N,) bool,
     ``v_r_comp`` (N,) float32; rows aligned with ``scene.load_radar(i)`` (NaN rows dropped).
-    ``summary.json``: per-frame speed, ok, reason, and the disagreement with the scene's motion data.
+    ``summary.json``: per-frame speed, ok, reason, and the disagreement with the scene's motion data;
+    ``time_sync``: the camera-radar clock offset estimate (:mod:`radar4dgs.radar.sync`), the offset
+    ``applied_s`` (``RadarConfig.sync``) and the ``action`` taken. Objects, tracking and the
+    disagreement use the re-stamped scans; later stages get them with ``prepared_synced_scene``.
     ``objects.json``: the dynamic points grouped into tracked objects with a planar velocity each
     (schema in :mod:`radar4dgs.radar.objects`; read it with ``load_radar_objects``).
 """
@@ -26,7 +29,7 @@ from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
 from radar4dgs.radar.objects import OBJECTS_FILE, detect_objects, track_objects
 from radar4dgs.radar.poses import expected_radar_velocity, fill_gaps
-from radar4dgs.radar.sync import scene_time_offset
+from radar4dgs.radar.sync import offset_to_apply, scene_time_offset, synced_scene
 
 NPZ_KEYS = ("ego_velocity", "covariance", "ok", "inliers", "dynamic", "v_r_comp")
 
@@ -100,6 +103,14 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     fits = fit_frames(points, config, progress, scene.radar.radar_to_ego)
     stamps = np.array([f.radar_timestamp for f in scene.frames])
     velocities = smooth_velocities(stamps, fits, config)
+    # Camera-radar clock offset: Doppler speeds against the speed the camera-time poses imply. The
+    # Doppler fits do not depend on the stamps; everything placed in the world or in time below does.
+    time_sync = scene_time_offset(scene, stamps, velocities, config.sync_max_offset)
+    applied, time_sync["action"] = offset_to_apply(time_sync, config.sync, config.sync_threshold,
+                                                   bool(scene.source.get("poses_from_radar")))
+    time_sync["applied_s"] = applied
+    scene = synced_scene(scene, applied)
+    stamps = np.array([f.radar_timestamp for f in scene.frames])
 
     frames, detections = [], []
     for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points, strict=True)):
@@ -123,8 +134,7 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     summary: dict[str, Any] = {"frames": frames, "num_ok": int(sum(f.ok for f in fits)),
                                "num_frames": len(fits), "config": to_dict(config)}
     summary["disagreement"] = compare_with_scene(scene, velocities)
-    # Camera-radar clock offset: Doppler speeds against the speed the camera-time poses imply.
-    summary["time_sync"] = scene_time_offset(scene, stamps, velocities)
+    summary["time_sync"] = time_sync
     for i, entry in enumerate(frames):
         errs = summary["disagreement"].get("per_frame")
         entry["disagreement"] = None if errs is None else errs[i]

@@ -100,3 +100,69 @@ def scene_time_offset(scene, radar_times: np.ndarray, radar_velocities: np.ndarr
     result["note"] = ("the scene's poses were integrated from this radar: the offset is 0 by construction"
                       if scene.source.get("poses_from_radar") else "")
     return result
+
+
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """(Q, 4, 4) poses at ``query`` (Q,) from (T, 4, 4) ``poses`` stamped ``times`` (T, increasing,
+    T >= 2): on the segment of the nearest bracketing pair, translation linear and rotation along
+    the pair's relative rotation vector (a constant-rate turn); past either end the first/last
+    segment's motion is extrapolated (a shifted scan at the clip's edge lies just outside it)."""
+    from scipy.spatial.transform import Rotation
+
+    times, poses, query = np.asarray(times, float), np.asarray(poses, float), np.asarray(query, float)
+    hi = np.clip(np.searchsorted(times, query), 1, len(times) - 1)
+    lo = hi - 1
+    s = (query - times[lo]) / (times[hi] - times[lo])
+    relative = Rotation.from_matrix(np.einsum("qji,qjk->qik", poses[lo, :3, :3], poses[hi, :3, :3]))
+    out = np.tile(np.eye(4), (len(query), 1, 1))
+    out[:, :3, :3] = poses[lo, :3, :3] @ Rotation.from_rotvec(relative.as_rotvec() * s[:, None]).as_matrix()
+    out[:, :3, 3] = poses[lo, :3, 3] + s[:, None] * (poses[hi, :3, 3] - poses[lo, :3, 3])
+    return out
+
+
+def offset_to_apply(time_sync: dict[str, Any], mode: str, threshold: float,
+                    poses_from_radar: bool) -> tuple[float, str]:
+    """The offset (s) to re-stamp the radar by under ``mode`` ("auto" | "off") and why, from an
+    estimate of :func:`scene_time_offset`: "auto" applies an observable estimate whose magnitude
+    exceeds ``threshold``; never when the poses come from this radar (0 by construction)."""
+    offset = time_sync.get("offset_s")
+    if mode == "off":
+        return 0.0, "sync off: the offset is reported, not applied"
+    if poses_from_radar:
+        return 0.0, "not applied: the poses were integrated from this radar (offset 0 by construction)"
+    if offset is None:
+        return 0.0, f"not applied: the offset is not observable ({time_sync.get('note') or 'speed too constant'})"
+    if abs(offset) <= threshold:
+        return 0.0, f"not applied: |{offset * 1000:.1f} ms| is within the {threshold * 1000:.0f} ms threshold"
+    return float(offset), f"applied: radar stamps moved by {offset * 1000:+.1f} ms"
+
+
+def synced_scene(scene, offset: float):
+    """``scene`` with every radar scan re-stamped ``radar_timestamp + offset`` (camera clock) and its
+    ``radar_ego_to_world`` the ego pose at that time, interpolated from the camera-time poses
+    (:func:`interpolate_poses`); ``scene`` itself when ``offset`` is 0. Consumers that relate a scan
+    to its camera frame (depth, masks, object points) then move its static points by the ego motion
+    and its objects by their velocity over the corrected ``timestamp - radar_timestamp``."""
+    import dataclasses
+
+    if not offset or len(scene.frames) < 2:
+        return scene
+    camera_times = np.array([f.timestamp for f in scene.frames])
+    stamps = np.array([f.radar_timestamp for f in scene.frames]) + offset
+    poses = interpolate_poses(camera_times, np.stack([f.ego_to_world for f in scene.frames]), stamps)
+    frames = tuple(dataclasses.replace(f, radar_timestamp=float(t), radar_ego_to_world=p)
+                   for f, t, p in zip(scene.frames, stamps, poses, strict=True))
+    return dataclasses.replace(scene, frames=frames)
+
+
+def prepared_synced_scene(scene, prepared_radar):
+    """``scene`` re-stamped by the offset the radar stage applied (``<prepared_radar>/summary.json``
+    ``time_sync.applied_s``; ``scene`` as is when the summary has none)."""
+    import json
+    from pathlib import Path
+
+    path = Path(prepared_radar) / "summary.json"
+    if not path.is_file():
+        return scene
+    applied = (json.loads(path.read_text(encoding="utf-8")).get("time_sync") or {}).get("applied_s") or 0.0
+    return synced_scene(scene, float(applied))

@@ -169,6 +169,15 @@ class SynthConfig:
     lidar: LidarSimConfig = field(default_factory=LidarSimConfig)  # lidar simulation
     prior: MonoPriorConfig = field(default_factory=MonoPriorConfig)  # priors/ (mono depth, sky mask)
     traffic: TrafficConfig = field(default_factory=TrafficConfig)  # moving objects: calm (default) or a profile
+    # The ego speed swings by +- this (m/s) with a period of `ego_speed_period` s (0: constant speed, as
+    # always); a changing speed is what makes a camera-radar clock offset observable (radar/sync.py).
+    ego_speed_swing: float = 0.0
+    ego_speed_period: float = 4.0  # period of that swing (s)
+    # The radar's clock is off by this (s): a scan is taken at the camera frame's time t (the scans and
+    # gt/ are those of t) but stamped radar_timestamp = t - offset, with radar_ego_to_world the pose at
+    # that wrong stamp, as a converter reading a skewed clock would write it. Positive: the radar's
+    # stamps run early, the camera's late relative to them, the sign of radar/sync.py's tau.
+    radar_time_offset: float = 0.0
 
     PRESETS: ClassVar[dict[str, dict]] = {
         "tiny": {"width": 160, "height": 90, "num_frames": 20,

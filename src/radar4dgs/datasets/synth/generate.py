@@ -36,6 +36,7 @@ def validate(config: SynthConfig) -> None:
         (config.radar.mount_xyz[2] > 0, "radar.mount_xyz z must be above the road (> 0)"),
         (config.lidar.mount_xyz[2] > 0, "lidar.mount_xyz z must be above the road (> 0)"),
         (config.ego_speed[0] >= 0, "ego_speed must be >= 0"),
+        (config.ego_speed_period > 0, f"ego_speed_period must be > 0, got {config.ego_speed_period}"),
         (config.parked_cars[0] >= 0 and config.moving_cars[0] >= 0, "car counts must be >= 0"),
         (config.lidar.beams >= 1, "lidar.beams must be >= 1"),
         (config.traffic.attempts >= 1 and config.traffic.min_gap >= 0, "traffic.attempts must be >= 1, "
@@ -70,6 +71,10 @@ def config_record(config: SynthConfig) -> dict:
     profiles are left out while they hold their defaults, so calm scenes keep the exact scene.json
     they had before those options existed."""
     record = to_dict(config)
+    # Options added later are recorded only when set, so existing scenes keep their exact scene.json.
+    for name, default in (("ego_speed_swing", 0.0), ("ego_speed_period", 4.0), ("radar_time_offset", 0.0)):
+        if record.get(name) == default and (name != "ego_speed_period" or not config.ego_speed_swing):
+            del record[name]
     if config.traffic == TrafficConfig():
         del record["traffic"]
         defaults, reflectivity = RadarReflectivity(), config.radar.reflectivity
@@ -105,6 +110,9 @@ def _object_metadata(world: W.World, times: np.ndarray, calm: bool = True) -> li
         "trajectory": {"model": "x = speed t, y = lane_y + amplitude sin(wavenumber x + phase) (road frame)",
                        "lane_y": ego.lane_y, "amplitude": ego.amplitude, "wavenumber": ego.wavenumber,
                        "phase": ego.phase}}]
+    if ego.swing:
+        objects[0]["trajectory"].update(model="dx/dt = speed + swing sin(2 pi t / swing_period), y as above",
+                                        swing=ego.swing, swing_period=ego.swing_period)
     if not calm:
         return objects + [_mover_metadata(mover, to_world, times) for mover in world.movers]
     for car in world.movers:
@@ -150,8 +158,11 @@ def synthesize(config: SynthConfig, out: Path, overwrite: bool = False, progress
             prior_rng = np.random.default_rng([config.seed, _PRIOR, i])
             field = P.distortion_field(world.noise, config.width, config.height, config.prior.distortion, time)
             pose = to_world @ world.ego.pose(time)
-            frame = Frame(name=f"{i:06d}", timestamp=time, ego_to_world=pose, radar_timestamp=time,
-                          radar_ego_to_world=pose,
+            # A skewed radar clock (radar_time_offset): the scan is of `time`, its stamp and pose are not.
+            radar_time = time - config.radar_time_offset
+            radar_pose = to_world @ world.ego.pose(radar_time) if config.radar_time_offset else pose
+            frame = Frame(name=f"{i:06d}", timestamp=time, ego_to_world=pose, radar_timestamp=radar_time,
+                          radar_ego_to_world=radar_pose,
                           ego_velocity=np.array([np.linalg.norm(world.ego.velocity(time)), 0.0, 0.0]),
                           extra={"ego_angular_velocity": [0.0, 0.0, world.ego.yaw_rate(time)]})
             writer.add_frame(frame, view.image, scan.points, lidar=lidar,

@@ -187,7 +187,8 @@ def build_world(config: SynthConfig) -> World:
     speed = ranged(rng, config.ego_speed)
     wavelength = ranged(rng, config.weave_wavelength)
     ego = EgoTrack(speed=speed, lane_y=EGO_LANE_Y, amplitude=ranged(rng, config.weave_amplitude),
-                   wavenumber=2 * np.pi / wavelength, phase=float(rng.uniform(0, 2 * np.pi)))
+                   wavenumber=2 * np.pi / wavelength, phase=float(rng.uniform(0, 2 * np.pi)),
+                   swing=config.ego_speed_swing, swing_period=config.ego_speed_period)
     travel = speed * duration
     x_int = travel + rng.uniform(35.0, 70.0)
     if config.traffic.near_intersection:

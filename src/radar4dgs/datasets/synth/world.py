@@ -46,22 +46,35 @@ FACADE_COLORS = np.array([
 
 @dataclass(frozen=True)
 class EgoTrack:
-    """Ego motion: x = speed * t, y = lane + amplitude * sin(k x + phase), heading along the path."""
+    """Ego motion: x = speed * t (plus an optional speed swing), y = lane + amplitude * sin(k x +
+    phase), heading along the path."""
 
     speed: float  # forward speed along x (m/s)
     lane_y: float
     amplitude: float
     wavenumber: float
     phase: float
+    # Optional speed change: dx/dt = speed + swing * sin(2 pi t / swing_period) (SynthConfig.ego_speed_swing);
+    # 0 keeps the constant speed (and every calm scene's exact numbers).
+    swing: float = 0.0
+    swing_period: float = 4.0
+
+    def along(self, t: float) -> tuple[float, float]:
+        """Road x (m) and dx/dt (m/s) at time ``t``."""
+        if not self.swing:
+            return self.speed * t, self.speed
+        w = 2 * np.pi / self.swing_period
+        return (self.speed * t + self.swing / w * (1 - np.cos(w * t)),
+                self.speed + self.swing * np.sin(w * t))
 
     def position(self, t: float) -> np.ndarray:
-        x = self.speed * t
+        x = self.along(t)[0]
         return np.array([x, self.lane_y + self.amplitude * np.sin(self.wavenumber * x + self.phase), 0.0])
 
     def velocity(self, t: float) -> np.ndarray:
         """(3,) road-frame velocity (m/s)."""
-        x = self.speed * t
-        return np.array([self.speed, self.amplitude * self.wavenumber * self.speed *
+        x, speed = self.along(t)
+        return np.array([speed, self.amplitude * self.wavenumber * speed *
                          np.cos(self.wavenumber * x + self.phase), 0.0])
 
     def yaw(self, t: float) -> float:
@@ -70,9 +83,13 @@ class EgoTrack:
 
     def yaw_rate(self, t: float) -> float:
         """d(yaw)/dt (rad/s), analytic."""
-        arg = self.wavenumber * self.speed * t + self.phase
+        if self.swing:
+            x, speed = self.along(t)
+            arg = self.wavenumber * x + self.phase
+        else:  # the constant-speed expression, kept so calm scenes stay bit-identical
+            arg, speed = self.wavenumber * self.speed * t + self.phase, self.speed
         slope = self.amplitude * self.wavenumber * np.cos(arg)
-        dslope = -self.amplitude * self.wavenumber ** 2 * self.speed * np.sin(arg)
+        dslope = -self.amplitude * self.wavenumber ** 2 * speed * np.sin(arg)
         return float(dslope / (1 + slope * slope))
 
     def pose(self, t: float) -> np.ndarray:
