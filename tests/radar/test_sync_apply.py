@@ -3,6 +3,8 @@ decision, and a synthetic scene whose radar clock is skewed by a known offset, r
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -74,3 +76,12 @@ def test_a_skewed_radar_clock_is_estimated_and_undone(skewed, tmp_path, mode):
         assert shift.max() < 0.005 * 25  # what 5 ms of stamp error leaves at up to 25 m/s
         # The disagreement with the poses is measured on the corrected stamps.
         assert summary["disagreement"]["rmse"] < sync["rmse_at_zero"]
+
+
+def test_prepare_says_what_it_did_with_the_offset(skewed, tmp_path, capsys):
+    from radar4dgs.cli import main
+
+    assert main(["prepare", str(skewed.root), "--out", str(tmp_path / "p"), "--only", "radar", "--preset", "tiny",
+                 "--quiet"]) == 0
+    moved = re.search(r"\(time sync: applied: radar stamps moved by ([+-][\d.]+) ms\)", capsys.readouterr().out)
+    assert moved and float(moved.group(1)) == pytest.approx(100, abs=5)

@@ -49,6 +49,7 @@ from radar4dgs.model.run import (
 from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
+from radar4dgs.radar.sync import prepared_synced_scene
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
 from radar4dgs.train.fit_motion import torch_threads
@@ -145,7 +146,8 @@ class Trainer:
 
     # ---- set-up
     def _load(self) -> None:
-        self.scene = read_scene(self.scene_path)
+        # Radar scans re-stamped by the camera-radar clock offset that prepare applied (radar/sync.py).
+        self.scene = prepared_synced_scene(read_scene(self.scene_path), self.prepared / "radar")
         if not (self.prepared / "depth").is_dir():
             raise FileNotFoundError(f"{self.prepared}: no prepared depth (run `radar4dgs prepare "
                                     f"{self.scene_path}` first)")
