@@ -2,6 +2,7 @@
 
     python benchmarks/sync.py                        # seeds 1-3, offsets 0, +-0.05, +-0.1 s, aiMotive check
     python benchmarks/sync.py --seeds 1 --offsets 0.1 --skip-aimotive
+    python benchmarks/sync.py --train 1              # + tiny 600-iteration runs: sync off / auto / no offset
 
 Tiny synthetic scenes (20 frames, 1.9 s) whose ego speed swings by +-2 m/s over 4 s
 (``--scene.ego-speed-swing 2``) and whose radar clock is skewed by the injected offset
@@ -107,6 +108,27 @@ def aimotive(work: Path, src: Path) -> dict:
             "outputs_identical_except_summary": bool(all(same)) and len(off) == len(auto)}
 
 
+def train_comparison(work: Path, seed: int, offset: float, iterations: int) -> dict:
+    """Novel-view PSNR / PSNR* of ``tiny`` runs (``iterations``) on the swung scene of ``seed`` with
+    ``offset`` injected, prepared with ``sync`` off and auto, and on the scene without an offset
+    (reference). Runs with a metrics.json in ``work/train`` are reused."""
+    from radar4dgs.cli import main as cli
+
+    out = {}
+    for name, scene_offset, mode in (("off", offset, "off"), ("auto", offset, "auto"), ("no_offset", 0.0, "auto")):
+        scene = work / f"s{seed}-swing2-offset{scene_offset:+g}"
+        prepared, run = work / "train" / f"prep-{name}", work / "train" / f"run-{name}"
+        if not (run / "metrics.json").is_file():
+            cli(["prepare", str(scene), "--out", str(prepared), "--preset", "tiny", "--config.radar.sync", mode,
+                 "--quiet"])
+            cli(["train", str(scene), "--prepared", str(prepared), "--out", str(run), "--preset", "tiny",
+                 "--config.optim.iterations", str(iterations), "--quiet", "--force"])
+            cli(["eval", str(run), "--no-lpips", "--no-video", "--no-report", "--no-actors"])
+        nvs = json.loads((run / "metrics.json").read_text())["nvs"]
+        out[name] = {"nvs_psnr": nvs["psnr"], "nvs_psnr_star": nvs["psnr_dyn"], "nvs_ssim": nvs["ssim"]}
+    return {"seed": seed, "offset_s": offset, "iterations": iterations, "preset": "tiny", **out}
+
+
 def summarise(per_scene: dict) -> dict:
     swung = [r for key, r in per_scene.items() if "swing2" in key]
     errors = [abs(r["estimate_error_s"]) for r in swung if r["estimate_error_s"] is not None]
@@ -128,6 +150,9 @@ def main(argv=None) -> int:
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-bench-sync"))
     parser.add_argument("--aimotive", type=Path, default=AIMOTIVE)
     parser.add_argument("--skip-aimotive", action="store_true")
+    parser.add_argument("--train", type=int, metavar="SEED", help="also train off / auto / no offset on this seed")
+    parser.add_argument("--train-offset", type=float, default=0.1)
+    parser.add_argument("--iterations", type=int, default=600)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "radar-sync.json")
     args = parser.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
@@ -150,6 +175,10 @@ def main(argv=None) -> int:
         results["aimotive"] = a = aimotive(args.work, args.aimotive)
         print(f"aimotive: applied {a['applied_s']} ({a['time_sync_auto']['action']}), outputs identical "
               f"{a['outputs_identical_except_summary']}")
+    if args.train is not None:
+        results["training"] = t = train_comparison(args.work, args.train, args.train_offset, args.iterations)
+        print("training (novel-view PSNR / PSNR*): " + ", ".join(
+            f"{k} {t[k]['nvs_psnr']:.2f} / {t[k]['nvs_psnr_star']:.2f}" for k in ("off", "auto", "no_offset")))
     atomic_write_json(args.out, json.loads(json.dumps(results, default=float)))
     print(f"wrote {args.out}")
     return 0
