@@ -40,12 +40,14 @@ class FitMotionCommand:
 
     def run(self) -> int:
         from radar4dgs.io.scene import read_scene
+        from radar4dgs.radar.sync import prepared_synced_scene
         from radar4dgs.train.fit_motion import run_fit, write_motion_outputs
 
         prepared = self.prepared if self.prepared is not None else self.scene / "prepared"
         out = self.out if self.out is not None else prepared / "motion"
         # A missing or malformed scene or prepared file raises a user error: one line (radar4dgs.cli).
-        scene = read_scene(self.scene)
+        # The radar scans re-stamped by the clock offset prepare applied (radar4dgs.radar.sync).
+        scene = prepared_synced_scene(read_scene(self.scene), prepared / "radar")
         deformation, result = run_fit(scene, prepared, self.config, self.use_flow, self.use_radar,
                                       self.recompute_flow, evaluate=scene.has("gt/flow")
                                       and scene.has("gt/depth") and scene.has("gt/dynamic_mask"),
