@@ -16,11 +16,15 @@ speed reports ``observable`` False (the speed's spread under ``min_speed_std``).
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
+from scipy.spatial.transform import Rotation
 
 # Below this spread of the radar's speed (m/s) the offset is reported as unobservable.
 MIN_SPEED_STD = 0.2
@@ -107,8 +111,6 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray) -
     T >= 2): on the segment of the nearest bracketing pair, translation linear and rotation along
     the pair's relative rotation vector (a constant-rate turn); past either end the first/last
     segment's motion is extrapolated (a shifted scan at the clip's edge lies just outside it)."""
-    from scipy.spatial.transform import Rotation
-
     times, poses, query = np.asarray(times, float), np.asarray(poses, float), np.asarray(query, float)
     hi = np.clip(np.searchsorted(times, query), 1, len(times) - 1)
     lo = hi - 1
@@ -143,8 +145,6 @@ def synced_scene(scene, offset: float):
     (:func:`interpolate_poses`); ``scene`` itself when ``offset`` is 0. Consumers that relate a scan
     to its camera frame (depth, masks, object points) then move its static points by the ego motion
     and its objects by their velocity over the corrected ``timestamp - radar_timestamp``."""
-    import dataclasses
-
     if not offset or len(scene.frames) < 2:
         return scene
     camera_times = np.array([f.timestamp for f in scene.frames])
@@ -158,9 +158,6 @@ def synced_scene(scene, offset: float):
 def prepared_synced_scene(scene, prepared_radar):
     """``scene`` re-stamped by the offset the radar stage applied (``<prepared_radar>/summary.json``
     ``time_sync.applied_s``; ``scene`` as is when the summary has none)."""
-    import json
-    from pathlib import Path
-
     path = Path(prepared_radar) / "summary.json"
     if not path.is_file():
         return scene
