@@ -154,8 +154,7 @@ def test_runs_saved_before_the_option_count_as_training_static_on_every_pixel():
     from radar4dgs.config import to_dict
     from radar4dgs.train.run_config import run_config_difference
 
-    config = preset(TrainConfig, "tiny")
-    assert config.static_outside_masks
+    config = preset(TrainConfig, "tiny", static_outside_masks=True)
     saved = to_dict(config)
     del saved["static_outside_masks"]
     assert any("static_outside_masks" in line for line in run_config_difference(saved, config))
