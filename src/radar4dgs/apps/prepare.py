@@ -87,7 +87,8 @@ def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Ca
 
     summary = prepare_masks(scene, out_dir.parent, config, out_dir=out_dir, progress=progress)
     return {"frames": len(summary["frames"]),
-            "frames_with_dynamic_pixels": sum(f["dynamic_pixels"] > 0 for f in summary["frames"])}
+            "frames_with_dynamic_pixels": sum(f["dynamic_pixels"] > 0 for f in summary["frames"]),
+            "completion": summary["completion"]}
 
 
 def _no_radar(scene: Scene, out_dir: Path, config: Any, progress: Callable) -> dict:

@@ -35,6 +35,20 @@ class SegModelConfig:
 
 
 @dataclass
+class CompletionConfig:
+    """Radar-object mask completion (``segment/complete.py``): or the network's mask with the
+    depth-gated image hull of each radar object's returns (fast, close cars the patches only half cover)."""
+
+    # On tuning seeds realistic 101 / rush 201 (small) it raised recall 0.830 -> 0.962 / 0.935 -> 0.978
+    # (pixels moving > 30 px a frame: 0.36 -> 0.95 / 0.85 -> 0.99) at precision 0.963 -> 0.961 / 0.974 -> 0.968.
+    enabled: bool = True  # complete the masks with the radar objects (skipped without <prepared>/radar/objects.json)
+    min_returns: int = 3  # objects with fewer returns in front of the camera are left to the network
+    margin_m: float = 0.3  # grow the hull by this many metres at the object's median depth
+    depth_tolerance_m: float = 2.5  # keep hull pixels whose depth is within this of the returns' depth range
+    min_height_m: float = 0.15  # and whose point stands this high above the ego ground plane (z = 0): not road
+
+
+@dataclass
 class SegInferConfig:
     """How ``prepare`` turns radar and images into dynamic masks."""
 
@@ -62,6 +76,7 @@ class SegInferConfig:
     seed: int = 0  # anchor sampling seed (frame i uses seed + i, so masks are reproducible)
     save_prob: bool = True  # also write <frame>_prob.npy (float16 pasted probabilities)
     device: str = "cpu"  # torch device for the network
+    completion: CompletionConfig = field(default_factory=CompletionConfig)  # radar-object mask completion
 
     PRESETS = {"tiny": {"num_anchors": 4}, "small": {}, "paper": {}}
 

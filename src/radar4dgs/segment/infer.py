@@ -3,7 +3,9 @@
 :func:`prepare_masks` is the front-end step ``prepare`` calls; it writes
 ``<prepared>/masks/<frame>.png`` (uint8 0/255, 255 = moving object) and, when
 ``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
-``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named.
+``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named. With
+``config.completion.enabled`` (the default) the masks are completed with the radar objects of
+``<prepared>/radar/objects.json`` (``segment/complete.py``).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ import torch
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
 from radar4dgs.io.scene import Scene
+from radar4dgs.radar.objects import OBJECTS_FILE, load_radar_objects
+from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
+from radar4dgs.segment.complete import complete_mask, frame_objects
 from radar4dgs.segment.config import SegInferConfig
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
@@ -158,8 +163,6 @@ def encode_png(mask: np.ndarray) -> bytes:
 def segment_scene(scene: Scene, prepared_dir: Path | None, config: SegInferConfig,
                   model: RadarCameraSegNet | None = None):
     """Yield (index, FrameSegmentation) for every frame, with the method of ``config``."""
-    from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
-
     if config.method == "model" and model is None:
         model = load_model(config.checkpoint, config.device)
     for i in range(len(scene)):
@@ -171,6 +174,15 @@ def segment_scene(scene: Scene, prepared_dir: Path | None, config: SegInferConfi
             mask = baseline_frame(image, depth_for_baseline(scene, i, prepared_dir), radar, scene.camera.K,
                                   BaselineConfig())
             yield i, FrameSegmentation(mask.astype(np.float32))
+
+
+def completion_objects(prepared_dir: Path, config: SegInferConfig) -> list | None:
+    """The radar objects of every frame for the mask completion, or None when it is off or the
+    prepared folder has no ``radar/objects.json`` (masks made without the radar stage: oracle or
+    estimated dynamic points)."""
+    if not config.completion.enabled or not (prepared_dir / "radar" / OBJECTS_FILE).is_file():
+        return None
+    return load_radar_objects(prepared_dir)
 
 
 def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig | None = None,
@@ -185,17 +197,23 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     config = config or SegInferConfig()
     out = Path(out_dir) if out_dir is not None else Path(prepared_dir) / "masks"
     out.mkdir(parents=True, exist_ok=True)
+    objects = completion_objects(Path(prepared_dir), config)
     frames, start = [], time.perf_counter()
     results = segment_scene(scene, Path(prepared_dir), config, model)
     for i, result in (progress(results) if progress is not None else results):
         name = scene.frames[i].name
         mask = result.mask(config.threshold)
+        if objects is not None:
+            mask = complete_mask(mask, depth_for_baseline(scene, i, Path(prepared_dir)),
+                                 frame_objects(scene, i, objects[i]), scene.camera.K, scene.camera.cam_to_ego,
+                                 config.completion)
         atomic_write_bytes(out / f"{name}.png", encode_png(mask))
-        if config.save_prob:
-            atomic_save_npy(out / f"{name}_prob.npy", result.prob.astype(np.float16))
+        if config.save_prob:  # completed pixels count as certain, so prob > threshold is the PNG
+            atomic_save_npy(out / f"{name}_prob.npy", np.maximum(result.prob, mask).astype(np.float16))
         frames.append({"name": name, "anchors": int(len(result.anchors)), "dynamic_pixels": int(mask.sum())})
     elapsed = time.perf_counter() - start
     summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
-               "seconds_per_frame": round(elapsed / max(len(frames), 1), 4)}
+               "seconds_per_frame": round(elapsed / max(len(frames), 1), 4),
+               "completion": "radar objects" if objects is not None else "off"}
     atomic_write_json(out / "summary.json", summary)
     return summary

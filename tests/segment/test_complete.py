@@ -1,0 +1,58 @@
+"""Radar-object mask completion (segment/complete.py) on a closed-form scene: a flat road, a wall
+at 40 m and a 2 m x 1.4 m car face 8 m ahead whose network mask covers only its left half."""
+
+import numpy as np
+
+from radar4dgs.segment.complete import complete_mask, pixel_heights, project_points
+from radar4dgs.segment.config import CompletionConfig
+
+W, H, F = 160, 90, 114.0
+K = np.array([[F, 0.0, 79.5], [0.0, F, 44.5], [0.0, 0.0, 1.0]])
+# OpenCV camera 1.5 m above the road looking along ego x (x right = -y ego, y down = -z ego).
+CAM_TO_EGO = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0]])
+CAR_Z, CAR_X, CAR_H = 8.0, (-0.5, 1.5), (0.1, 1.5)  # face depth, lateral extent (cam x), heights above road
+
+
+def scene():
+    """Depth (H, W) z-depth, the car's gt mask (H, W) and 40 radar returns (cam frame) on its face."""
+    u, v = np.meshgrid(np.arange(W) + 0.0, np.arange(H) + 0.0)
+    y_ray = (v - K[1, 2]) / F
+    depth = np.where(y_ray > 0, 1.5 / np.where(y_ray > 0, y_ray, 1.0), 40.0).clip(max=40.0)
+    x_car = (u - K[0, 2]) / F * CAR_Z
+    h_car = 1.5 - y_ray * CAR_Z
+    car = (x_car >= CAR_X[0]) & (x_car <= CAR_X[1]) & (h_car >= CAR_H[0]) & (h_car <= CAR_H[1])
+    depth = np.where(car, CAR_Z, depth)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(*CAR_X, 40)
+    y = 1.5 - rng.uniform(*CAR_H, 40)
+    returns = np.stack([x, y, CAR_Z + rng.normal(0.0, 0.1, 40)], axis=1)
+    return depth, car, returns
+
+
+def test_pixel_heights_of_the_road_are_zero():
+    depth, car, _ = scene()
+    heights = pixel_heights(depth, K, CAM_TO_EGO)
+    road = ~car & (np.arange(H)[:, None] > K[1, 2] + 1)
+    np.testing.assert_allclose(heights[road & (depth < 40.0)], 0.0, atol=1e-9)
+    assert heights[car].min() >= CAR_H[0] - 0.05 and heights[car].max() <= CAR_H[1] + 0.05
+
+
+def test_half_missed_fast_car_is_completed_without_road():
+    depth, car, returns = scene()
+    cols = np.nonzero(car.any(axis=0))[0]
+    base = car & (np.arange(W)[None, :] < (cols[0] + cols[-1]) // 2)  # the network found the left half
+    assert 0.4 < base.sum() / car.sum() < 0.6
+    objects = [project_points(returns, K, 0.5)]
+    out = complete_mask(base, depth, objects, K, CAM_TO_EGO, CompletionConfig(enabled=True))
+    assert (out & car).sum() / car.sum() >= 0.97  # recall of the car
+    assert (out & ~car).sum() == 0  # road (height gate) and wall (depth gate) stay out
+    assert (out & base).sum() == base.sum()  # the network's mask is kept
+
+
+def test_completion_needs_depth_and_enough_returns():
+    depth, car, returns = scene()
+    base = np.zeros_like(car)
+    objects = [project_points(returns, K, 0.5)]
+    assert not complete_mask(base, None, objects, K, CAM_TO_EGO, CompletionConfig()).any()
+    few = [project_points(returns[:2], K, 0.5)]
+    assert not complete_mask(base, depth, few, K, CAM_TO_EGO, CompletionConfig(min_returns=3)).any()
