@@ -8,8 +8,9 @@ returns themselves: the convex hull of their projections, grown by ``margin_m`` 
 object's depth, so a near car grows more pixels than a far one). Inside that hull a pixel is added
 when its prepared metric depth lies within ``depth_tolerance_m`` of the returns' depth range (the
 buildings seen through the hull's corners stay out) and its back-projected point stands at least
-``min_height_m`` above the ego frame's ground plane ``z = 0`` (the scene format puts the ego origin on
-the road). The height gate matters most: on realistic seed 101 the depth gate alone let in 4.5 road
+``min_height_m`` above the ego frame's ground plane ``z = 0`` (assumed at road level, as in the
+synthetic scenes; an origin above the road only drops the lowest part of a car). The height gate
+matters most: on realistic seed 101 the depth gate alone let in 4.5 road
 pixels per car pixel gained (the road under a car is at the car's depth); above 0.15 m only 1 % of
 those remain and 98 % of the car pixels.
 """
