@@ -38,9 +38,20 @@ from radar4dgs.io.atomic import atomic_write_json
 RESULTS = Path(__file__).parent / "results"
 
 
-def build_scene(seed: int, traffic: str, preset_name: str, work: Path) -> Path:
+def prepare_config(preset_name: str, items: list[str]):
+    """The preset's PrepareConfig with dotted ``KEY=VALUE`` overrides (``masks.completion.enabled=false``)
+    merged into it field by field."""
+    from radar4dgs.apps.bench_spec import parse_overrides
+    from radar4dgs.apps.prepare import PrepareConfig
+    from radar4dgs.config import from_dict
+    from radar4dgs.train.variants import merge
+
+    return from_dict(PrepareConfig, merge(PrepareConfig.PRESETS[preset_name], parse_overrides(items)))
+
+
+def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_set: list[str] = ()) -> Path:
     """Synthesize and prepare one scene under work/scenes/, with its background render; reused."""
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.config import preset
     from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
@@ -51,7 +62,7 @@ def build_scene(seed: int, traffic: str, preset_name: str, work: Path) -> Path:
         synthesize(preset(SynthConfig, preset_name, seed=seed, traffic=traffic_profile(traffic)), scene,
                    overwrite=True, progress=False, preset=preset_name)
     if not (scene / "prepared" / "config.json").is_file():
-        run_prepare(scene, scene / "prepared", preset(PrepareConfig, preset_name), progress=False)
+        run_prepare(scene, scene / "prepared", prepare_config(preset_name, list(prepare_set)), progress=False)
     if not (scene / BACKGROUND_DIR).is_dir():
         write_backgrounds(scene, read_scene(scene).test_indices)  # only the test frames are scored
     return scene
@@ -67,6 +78,17 @@ def train_scene(scene: Path, preset_name: str, iterations: int, out: Path) -> Pa
         config = preset(TrainConfig, preset_name, threads=1, optim={"iterations": iterations})
         train_run(scene, scene / "prepared", out, config, progress=False, tensorboard=False)
     return out
+
+
+def novel_view_scores(run_dir: Path) -> dict:
+    """The run's reconstruction and novel-view PSNR and PSNR* (``radar4dgs eval`` without LPIPS, video
+    or report; its metrics.json is reused when present)."""
+    from radar4dgs.evaluate.reconstruction import evaluate_run
+
+    path = run_dir / "metrics.json"
+    metrics = (json.loads(path.read_text()) if path.is_file() else
+               evaluate_run(run_dir, "cpu", lpips=False, video=False, report=False, progress=False))
+    return {f"{split}_{key}": metrics[split].get(key) for split in ("recon", "nvs") for key in ("psnr", "psnr_dyn")}
 
 
 def psnr(squared_error: float, count: int) -> float | None:
@@ -183,7 +205,8 @@ def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float],
 def summary(rows: list[dict]) -> dict:
     """Means over scenes of the headline numbers (None entries skipped)."""
     keys = ("recall", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
-            "psnr_kept", "gain_db", "psnr_removed_observed", "psnr_static_elsewhere", "never_observed_fraction")
+            "psnr_kept", "gain_db", "psnr_removed_observed", "psnr_static_elsewhere", "never_observed_fraction",
+            "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
@@ -200,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-actors-bench"))
     parser.add_argument("--out", type=Path, default=RESULTS / "actors.json")
     parser.add_argument("--run", type=Path, nargs="*", default=[], help="already trained runs to score too")
+    parser.add_argument("--prepare-set", nargs="*", default=[],
+                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=false)")
     parser.add_argument("--figure", type=Path, default=None,
                         help="only draw the edit picture of the first --run's actor --figure-actor to this PNG")
     parser.add_argument("--figure-actor", type=int, default=0)
@@ -212,18 +237,20 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     rows: list[dict] = []
-    settings = {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations, "seeds": args.seeds}
+    settings = {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations, "seeds": args.seeds,
+                "prepare_set": args.prepare_set}
     # Runs given with --run were trained elsewhere: the preset and iterations here say nothing about them.
     document = {"settings": settings if args.seeds else {}, "runs": [str(p) for p in args.run], "scenes": rows}
     jobs = [(f"s{seed}", seed) for seed in args.seeds] + [(str(path), path) for path in args.run]
     for label, job in jobs:
         start = time.perf_counter()
         if isinstance(job, int):
-            scene = build_scene(job, args.traffic, args.preset, args.work)
+            scene = build_scene(job, args.traffic, args.preset, args.work, args.prepare_set)
             run_dir = train_scene(scene, args.preset, args.iterations, args.work / "runs" / scene.name)
         else:
             run_dir = job
-        row = {"label": label, **score_run(run_dir), "seconds": round(time.perf_counter() - start, 1)}
+        row = {"label": label, **score_run(run_dir), **novel_view_scores(run_dir),
+               "seconds": round(time.perf_counter() - start, 1)}
         rows.append(row)
         document["summary"] = summary([r for r in rows if r["label"].startswith("s")])
         atomic_write_json(args.out, document)

@@ -27,13 +27,18 @@ from pathlib import Path
 
 from radar4dgs.io.atomic import atomic_write_json
 
+sys.path.insert(0, str(Path(__file__).parent))
+from actors import prepare_config  # noqa: E402  (the benchmarks share this helper)
+
 GRID_SETTINGS = ["init.max_static=30000", "densify.max_gaussians=40000"]
 RESULTS = Path(__file__).parent / "results"
 
 
-def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, work: Path) -> tuple[Path, dict]:
-    """Synthesize (traffic profile, fps) and prepare one scene into work/scenes/<label>/; reused."""
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, work: Path,
+                  prepare_set: list[str] = ()) -> tuple[Path, dict]:
+    """Synthesize (traffic profile, fps) and prepare one scene into work/scenes/<label>/ (PrepareConfig
+    fields overridden by dotted ``prepare_set`` items); reused."""
+    from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.config import preset
     from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
     from radar4dgs.io.preview import dynamic_motion_statistics
@@ -47,7 +52,7 @@ def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, 
             overrides["fps"] = fps
         synthesize(preset(SynthConfig, preset_name, seed=seed, **overrides), scene, overwrite=True, progress=False,
                    preset=preset_name)
-    run_prepare(scene, scene / "prepared", preset(PrepareConfig, preset_name), progress=False)
+    run_prepare(scene, scene / "prepared", prepare_config(preset_name, list(prepare_set)), progress=False)
     return scene, dynamic_motion_statistics(read_scene(scene))
 
 
@@ -85,6 +90,8 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=600)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", nargs="*", default=[], help="extra TrainConfig fields of every cell (KEY=VALUE)")
+    parser.add_argument("--prepare-set", nargs="*", default=[],
+                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=false)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-traffic-bench"))
     parser.add_argument("--grid", default="grid", help="the grid's folder under --work (one per --set variant; "
                                                         "the scenes under --work/scenes are shared)")
@@ -93,10 +100,11 @@ def main() -> None:
     out = args.out or RESULTS / f"traffic-{args.traffic}.json"
     settings = GRID_SETTINGS + list(args.set)
     report = {"command": " ".join(["python", "benchmarks/traffic.py"] + sys.argv[1:]),
-              "grid": {"preset": args.preset, "iterations": args.iterations, "set": settings, "methods": args.methods},
+              "grid": {"preset": args.preset, "iterations": args.iterations, "set": settings, "methods": args.methods,
+                       "prepare_set": args.prepare_set},
               "scenes": {}}
     for seed in args.seeds:
-        scene, motion = prepare_scene(seed, args.traffic, args.fps, args.preset, args.work)
+        scene, motion = prepare_scene(seed, args.traffic, args.fps, args.preset, args.work, args.prepare_set)
         grid = args.work / args.grid
         subprocess.run([sys.executable, "-m", "radar4dgs.cli", "bench", "--scenes", str(scene), "--methods",
                         *args.methods, "--out", str(grid), "--preset", args.preset, "--iterations",
