@@ -5,7 +5,7 @@ import numpy as np
 
 from radar4dgs.radar.config import RadarObjectConfig
 from radar4dgs.radar.objects import detect_objects, track_objects
-from radar4dgs.radar.tracking import track_detections
+from radar4dgs.radar.tracking import smooth_tracks, track_detections
 
 J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -74,3 +74,54 @@ def test_a_straight_track_stays_straight():
     states = np.array([f.states[0] for f in out])
     assert np.abs(states[:, 4]).max() < 0.05 and max(f.turning[0] for f in out) < 0.5
     assert np.linalg.norm(states[:, 2:4] - velocity, axis=1).max() < 0.3
+
+
+def velocity_errors(frames, velocity):
+    return np.linalg.norm(np.array([f.states[0, 2:4] for f in frames]) - velocity, axis=1)
+
+
+def test_smoothing_gives_a_new_tracks_radial_only_scans_the_velocity_the_later_scans_measured():
+    times, z, R, radars, velocity, _ = lane_change(omega=0.0, fps=10.0, seed=4)
+    # The first three scans see the car at a narrow azimuth spread: their fit is the radial part only
+    # (along x here), with the traffic-scale std across the line of sight (objects.py).
+    for k in range(3):
+        z[k] = z[k].copy()
+        z[k][0, 3] = 0.0
+        R[k] = np.diag([0.25, 0.25, 0.05 ** 2, 10.0 ** 2]).reshape(1, 4, 4)
+    velocity = velocity + np.array([0.0, 3.0])     # the car also drifts sideways at 3 m/s
+    position = np.array([15.0, 0.0]) + np.outer(times, velocity[0])
+    for k in range(len(times)):
+        z[k] = z[k].copy()
+        z[k][0, :2] = position[k]
+        if k >= 3:
+            z[k][0, 3] = velocity[k, 1]
+    forward = track_detections(times, z, R, RadarObjectConfig(), radars)
+    smoothed = smooth_tracks(times, z, R, forward, RadarObjectConfig(), radars)
+    before, after = velocity_errors(forward, velocity), velocity_errors(smoothed, velocity)
+    # The forward filter knows only the radial part, then what the centroid's motion tells it.
+    assert before[0] > 2.5 and before[:2].min() > 1.0
+    assert after[:3].max() < 0.3 and after.max() < 0.3
+    assert [int(f.ids[0]) for f in smoothed] == [int(f.ids[0]) for f in forward]
+    # The fused covariance is no wider than the forward one, and at the start much narrower.
+    assert smoothed[0].covariances[0, 3, 3] < 0.01 * forward[0].covariances[0, 3, 3]
+    assert all(np.trace(s.covariances[0]) <= np.trace(f.covariances[0]) + 1e-9
+               for s, f in zip(smoothed, forward, strict=True))
+
+
+def test_smoothing_follows_a_gentle_lane_change_that_the_forward_filter_drifts_on():
+    times, z, R, radars, velocity, rates = lane_change(omega=0.1, fps=10.0, seed=3)
+    forward = track_detections(times, z, R, RadarObjectConfig(), radars)
+    smoothed = smooth_tracks(times, z, R, forward, RadarObjectConfig(), radars)
+    before, after = velocity_errors(forward, velocity), velocity_errors(smoothed, velocity)
+    # 0.1 rad/s x ~17 m = 1.7 m/s of bias, too slow for the turning model to take over going forward.
+    assert np.percentile(before, 90) > 1.5
+    assert np.percentile(after, 90) < 0.7 and np.median(after) <= np.median(before)
+
+
+def test_smoothing_keeps_a_straight_track_and_its_last_frame():
+    times, z, R, radars, velocity, _ = lane_change(omega=0.0, seed=2)
+    forward = track_detections(times, z, R, RadarObjectConfig(), radars)
+    smoothed = smooth_tracks(times, z, R, forward, RadarObjectConfig(), radars)
+    assert velocity_errors(smoothed, velocity).max() < 0.2
+    # The last detection has no later data: its estimate is the forward one.
+    np.testing.assert_array_equal(smoothed[-1].states, forward[-1].states)

@@ -68,6 +68,10 @@ class RadarObjectConfig:
     # Tracking: a detection may update a track when its squared Mahalanobis distance (4 dof: centroid
     # and velocity) is below this (chi-square 4 dof at 99.9 % = 18.47).
     gate_chi2: float = 18.47
+    # Tracking: fuse every track's forward estimate with a backward pass over its later detections
+    # (fixed-interval smoothing, `tracking.smooth_tracks`): a reconstruction is offline, and a track's
+    # first scans, which often see only the radial velocity, then get what the later scans measured.
+    smooth: bool = True
     # Tracking: a track not updated for more than this many consecutive frames is ended (0.5 s at
     # 10 Hz: a distant car's few returns drop out for several scans, and each new track has to learn
     # the tangential velocity again from the centroid's motion).

@@ -24,7 +24,8 @@ Output ``<prepared>/radar/objects.json`` (written by ``prepare_radar``; world fr
      "frames": [{"name": "000000", "timestamp": 0.0, "objects": [{
         "track": 0,                         # track id, stable across frames
         "centroid": [x, y, z],              # mean of the object's inlier returns (world, m)
-        "velocity": [vx, vy, 0.0],          # tracked velocity (IMM, at the centroid) after this frame (world, m/s)
+        "velocity": [vx, vy, 0.0],          # tracked velocity (IMM, at the centroid; smoothed over the whole
+                                            # track unless RadarObjectConfig.smooth is off) (world, m/s)
         "velocity_covariance": [[..], [..]],        # its 2x2 covariance (m^2/s^2)
         "yaw_rate": 0.0, "yaw_rate_std": 0.3,       # tracked yaw rate (rad/s, counter-clockwise) and its std
         "turning": 0.1,                     # probability of the tracker's turning model
@@ -49,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.radar.config import RadarObjectConfig
-from radar4dgs.radar.tracking import track_detections
+from radar4dgs.radar.tracking import smooth_tracks, track_detections
 
 OBJECTS_FILE = "objects.json"
 FORMAT = "radar4dgs-radar-objects"
@@ -298,7 +299,10 @@ def track_objects(names: list[str], timestamps: np.ndarray, detections: list[lis
     R = [np.array([p[1] for p in frame]).reshape(-1, 4, 4) for frame in pairs]
     # The radar's planar position at each scan (the point where every fit of that scan holds).
     radars = np.array([frame[0].radar[:2] if frame else np.zeros(2) for frame in detections]).reshape(-1, 2)
-    tracked = track_detections(np.asarray(timestamps, dtype=np.float64), z, R, config, radars)
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    tracked = track_detections(stamps, z, R, config, radars)
+    if config.smooth:
+        tracked = smooth_tracks(stamps, z, R, tracked, config, radars)
     frames = []
     for name, stamp, found, out in zip(names, timestamps, detections, tracked, strict=True):
         objects = [object_record(d, out.ids[k], out.states[k], out.covariances[k], out.turning[k])

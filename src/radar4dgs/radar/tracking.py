@@ -279,3 +279,76 @@ def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], cov
                                 np.array([c[1] for c in combined]).reshape(-1, 5, 5),
                                 np.array([tr.mu[1] for tr in rows], dtype=np.float64)))
     return out
+
+
+# Time reversal of a state (p, v, omega) and of a measurement (centroid, w): positions stay, velocities
+# and the yaw rate change sign (v'(s) = -v(T - s) turns at -omega), and so does w = v + omega J (r - p).
+_REVERSE_STATE = np.diag([1.0, 1.0, -1.0, -1.0, -1.0])
+_REVERSE_MEASUREMENT = np.diag([1.0, 1.0, -1.0, -1.0])
+
+
+def _backward_predictions(times: np.ndarray, z: np.ndarray, R: np.ndarray, radars: np.ndarray,
+                          config: RadarObjectConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One track's detections filtered backward in time by the same IMM, each step's PREDICTION from
+    the later detections only (so that fusing it with the forward estimate counts every measurement
+    once): (K - 1, 5) states and (K - 1, 5, 5) covariances, in forward time, of detections 0 .. K - 2
+    (the last has no later data).
+
+    Args:
+        times: (K,) increasing seconds; z: (K, 4); R: (K, 4, 4); radars: (K, 2).
+    """
+    K = len(times)
+    states, covs = np.zeros((K - 1, 5)), np.zeros((K - 1, 5, 5))
+    D = _REVERSE_MEASUREMENT
+    track = _birth(0, D @ z[-1], D @ R[-1] @ D, config)
+    for k in range(K - 2, -1, -1):
+        predicted = _imm_predict(track, float(times[k + 1] - times[k]), config)
+        track.mu = predicted
+        x, P = track.combined()
+        states[k], covs[k] = _REVERSE_STATE @ x, _REVERSE_STATE @ P @ _REVERSE_STATE
+        _imm_update(track, predicted, D @ z[k], D @ R[k] @ D, radars[k])
+    return states, covs
+
+
+def fuse(x_forward: np.ndarray, P_forward: np.ndarray, x_backward: np.ndarray, P_backward: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Product of the Gaussians (5,), (5, 5) of the forward filter and the backward prediction (the
+    two-filter smoother), written as a Kalman update of the forward estimate by the backward one so
+    that only ``P_forward + P_backward`` is inverted (either alone may be near singular: the straight
+    model's yaw rate is certain)."""
+    gain = np.linalg.solve((P_forward + P_backward).T, P_forward.T).T      # P_f (P_f + P_b)^-1
+    P = P_forward - gain @ P_forward
+    return x_forward + gain @ (x_backward - x_forward), 0.5 * (P + P.T)
+
+
+def smooth_tracks(timestamps: np.ndarray, measurements: list[np.ndarray], covariances: list[np.ndarray],
+                  tracked: list[TrackedFrame], config: RadarObjectConfig | None = None,
+                  radar_positions: np.ndarray | None = None) -> list[TrackedFrame]:
+    """Fixed-interval smoothing of :func:`track_detections`' output: every track's forward estimate
+    fused with the backward filter's prediction from the track's later detections (:func:`fuse`), the
+    association kept as the forward pass made it.
+
+    Why: the scene is reconstructed offline, so a frame's estimate may use the whole drive. A new
+    track's first scans know only the radial velocity when their returns span little azimuth, and
+    the forward filter reports them so; the backward pass arrives with the velocity the later scans
+    pinned down. Arguments as :func:`track_detections`; returns frames of the same shape with the
+    smoothed ``states`` and ``covariances`` (``ids`` and ``turning`` unchanged).
+    """
+    config = config or RadarObjectConfig()
+    radars = np.zeros((len(timestamps), 2)) if radar_positions is None else np.asarray(radar_positions, float)
+    rows: dict[int, list[tuple[int, int]]] = {}
+    for t, frame in enumerate(tracked):
+        for j, track_id in enumerate(frame.ids):
+            rows.setdefault(int(track_id), []).append((t, j))
+    states = [frame.states.copy() for frame in tracked]
+    covs = [frame.covariances.copy() for frame in tracked]
+    for members in rows.values():
+        if len(members) < 2:
+            continue
+        frames = np.array([t for t, _ in members])
+        z = np.array([np.asarray(measurements[t], float).reshape(-1, 4)[j] for t, j in members])
+        R = np.array([np.asarray(covariances[t], float).reshape(-1, 4, 4)[j] for t, j in members])
+        back_x, back_P = _backward_predictions(np.asarray(timestamps, float)[frames], z, R, radars[frames, :2], config)
+        for k, (t, j) in enumerate(members[:-1]):
+            states[t][j], covs[t][j] = fuse(tracked[t].states[j], tracked[t].covariances[j], back_x[k], back_P[k])
+    return [TrackedFrame(frame.ids, s, c, frame.turning) for frame, s, c in zip(tracked, states, covs, strict=True)]
