@@ -3,7 +3,7 @@ and with dynamics switched off, check that a killed run resumes to the same metr
 
     python benchmarks/reconstruct.py [--seeds 1 2 3] [--preset small] [--methods ours static]
                                      [--work /tmp/radar4dgs-recon-bench] [--resume-check SEED]
-                                     [--aimotive]
+                                     [--aimotive] [--traffic calm|realistic|rush] [--fps 5] [--threads N]
 
 Every cell (seed x method) is a run folder under --work, in the demo's layout
 (seed<N>/{scene, prepared, run, static}); finished cells are reused, so an interrupted benchmark
@@ -15,6 +15,11 @@ benchmarks/results/reconstruct.json after every cell.
 first checkpoint exists, resumes it, evaluates it and compares with the unbroken run's metrics.
 --aimotive converts the real aiMotive fixture (../shared/fixtures/aimotive-night), prepares,
 trains and evaluates it, and reports its numbers.
+
+--traffic realistic|rush (and --fps) makes the seeds' scenes with that traffic profile (and frame
+rate), the seeds of benchmarks/motion.py (issue 21: rush traffic at 5 Hz, report seeds 209-213, is
+the hard set); each seed's entry then holds its dynamic pixels' image motion (p50/p90/p99 px per
+frame at its width), and no demo is run (the demo makes calm scenes).
 """
 
 from __future__ import annotations
@@ -30,20 +35,26 @@ from pathlib import Path
 
 from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.preview import dynamic_motion_statistics
+from radar4dgs.io.scene import read_scene
 
 RESULTS = Path(__file__).parent / "results" / "reconstruct.json"
 FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotive-night"
 
 
-def prepare_scene(seed: int, preset_name: str, work: Path) -> tuple[Path, Path, float]:
+def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm", fps: float | None = None
+                  ) -> tuple[Path, Path, float]:
     """The demo's layout: work/seed<N>/{scene, prepared}."""
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
+    from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
-        synthesize(preset(SynthConfig, preset_name, seed=seed), scene, overwrite=True, progress=False,
+        overrides: dict = {} if traffic == "calm" else {"traffic": traffic_profile(traffic)}
+        if fps is not None:
+            overrides["fps"] = fps
+        synthesize(preset(SynthConfig, preset_name, seed=seed, **overrides), scene, overwrite=True, progress=False,
                    preset=preset_name)
     run_prepare(scene, work / f"seed{seed}" / "prepared", preset(PrepareConfig, preset_name), progress=False)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started
@@ -66,7 +77,8 @@ def run_dir(work: Path, seed: int, method: str) -> Path:
     return work / f"seed{seed}" / ("run" if method == "ours" else method)
 
 
-def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, method: str) -> dict:
+def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, method: str,
+                   threads: int | None = None) -> dict:
     from radar4dgs.evaluate.reconstruction import evaluate_run
     from radar4dgs.model.config import TrainConfig
     from radar4dgs.train.trainer import train_run
@@ -75,7 +87,9 @@ def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, met
     if not (run / "model.pt").is_file():
         started = time.perf_counter()
         resume = (run / "checkpoints" / "last.pt").is_file()
-        train_run(scene, prepared, run, preset(TrainConfig, preset_name, method=method), resume=resume, progress=True)
+        extra = {} if threads is None else {"threads": threads}
+        train_run(scene, prepared, run, preset(TrainConfig, preset_name, method=method, **extra), resume=resume,
+                  progress=True)
         seconds = time.perf_counter() - started
     if (run / "metrics.json").is_file():
         metrics = json.loads((run / "metrics.json").read_text())
@@ -145,21 +159,30 @@ def main() -> None:
     parser.add_argument("--demo-seed", type=int, default=1, help="run `radar4dgs demo` for this seed (timed)")
     parser.add_argument("--aimotive", action="store_true")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="calm")
+    parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads of each training (default: the preset's)")
     args = parser.parse_args()
+    if args.traffic != "calm" or args.fps is not None:
+        args.demo_seed = None
 
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
     results.setdefault("cells", {})
-    results.update({"preset": args.preset, "threads": os.cpu_count()})
+    results.update({"preset": args.preset, "threads": os.cpu_count(), "traffic": args.traffic, "fps": args.fps})
     for seed in args.seeds:
         demo = run_demo(seed, args.preset, args.work) if seed == args.demo_seed else {}
         if demo:
             results["demo"] = {"seed": seed, **demo}
             atomic_write_json(args.out, results)
             print(f"radar4dgs demo (seed {seed}): {demo['demo_seconds']:.0f} s", flush=True)
-        scene, prepared, prepare_seconds = prepare_scene(seed, args.preset, args.work)
+        scene, prepared, prepare_seconds = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps)
+        motion = None if args.traffic == "calm" else dynamic_motion_statistics(read_scene(scene))
         for method in args.methods:
-            cell = train_and_eval(scene, prepared, run_dir(args.work, seed, method), args.preset, method)
+            cell = train_and_eval(scene, prepared, run_dir(args.work, seed, method), args.preset, method, args.threads)
             cell["prepare_seconds"] = prepare_seconds
+            if motion is not None:
+                cell["image_motion_px"] = motion
             results["cells"][f"seed{seed}/{method}"] = cell
             print(f"seed {seed} {method:<7} recon PSNR {cell['recon_psnr']:.2f}  nvs PSNR {cell['nvs_psnr']:.2f}  "
                   f"nvs PSNR* {cell['nvs_psnr_dyn']:.2f}  train {cell['train_seconds'] or 0:.0f} s", flush=True)
