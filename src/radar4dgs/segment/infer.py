@@ -4,7 +4,7 @@
 ``<prepared>/masks/<frame>.png`` (uint8 0/255, 255 = moving object) and, when
 ``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
 ``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named. With
-``config.completion.enabled`` (the default) the masks are completed with the radar objects of
+``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
 ``<prepared>/radar/objects.json`` (``segment/complete.py``).
 """
 
