@@ -39,7 +39,7 @@ RESULTS = Path(__file__).parent / "results"
 
 
 def prepare_config(preset_name: str, items: list[str]):
-    """The preset's PrepareConfig with dotted ``KEY=VALUE`` overrides (``masks.completion.enabled=false``)
+    """The preset's PrepareConfig with dotted ``KEY=VALUE`` overrides (``masks.completion.enabled=true``)
     merged into it field by field."""
     from radar4dgs.apps.bench_spec import parse_overrides
     from radar4dgs.apps.prepare import PrepareConfig
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=RESULTS / "actors.json")
     parser.add_argument("--run", type=Path, nargs="*", default=[], help="already trained runs to score too")
     parser.add_argument("--prepare-set", nargs="*", default=[],
-                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=false)")
+                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=true)")
     parser.add_argument("--figure", type=Path, default=None,
                         help="only draw the edit picture of the first --run's actor --figure-actor to this PNG")
     parser.add_argument("--figure-actor", type=int, default=0)

@@ -91,7 +91,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--set", nargs="*", default=[], help="extra TrainConfig fields of every cell (KEY=VALUE)")
     parser.add_argument("--prepare-set", nargs="*", default=[],
-                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=false)")
+                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=true)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-traffic-bench"))
     parser.add_argument("--grid", default="grid", help="the grid's folder under --work (one per --set variant; "
                                                         "the scenes under --work/scenes are shared)")
