@@ -43,8 +43,8 @@ class CompletionConfig:
     # (pixels moving > 30 px a frame: 0.36 -> 0.95 / 0.85 -> 0.99) at precision 0.963 -> 0.961 / 0.974 -> 0.968.
     # Off by default: trained on the completed masks (small, 600 iterations) the tuning seeds lost
     # novel-view PSNR* (realistic 101: 20.03 -> 19.41 dB; rush 5 Hz 214: 20.46 -> 20.11) and the
-    # static layer under removed cars 16.87 -> 16.39 dB (101): a fast car the masks now cover is handed
-    # to the field, which cannot follow it either (benchmarks/results/masks-training.json).
+    # static layer under removed cars 16.87 -> 16.39 dB (101; benchmarks/results/masks-training.json).
+    # Not broken down; likely, a fast car the masks now cover goes to the field, which cannot follow it.
     enabled: bool = False  # complete the masks with the radar objects (skipped without <prepared>/radar/objects.json)
     min_returns: int = 3  # objects with fewer returns in front of the camera are left to the network
     margin_m: float = 0.3  # grow the hull by this many metres at the object's median depth
