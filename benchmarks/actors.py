@@ -34,35 +34,24 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.io.atomic import atomic_write_json
+from scene_configs import prepare_config, synth_config
 
 RESULTS = Path(__file__).parent / "results"
-
-
-def prepare_config(preset_name: str, items: list[str]):
-    """The preset's PrepareConfig with dotted ``KEY=VALUE`` overrides (``masks.completion.enabled=true``)
-    merged into it field by field."""
-    from radar4dgs.apps.bench_spec import parse_overrides
-    from radar4dgs.apps.prepare import PrepareConfig
-    from radar4dgs.config import from_dict
-    from radar4dgs.train.variants import merge
-
-    return from_dict(PrepareConfig, merge(PrepareConfig.PRESETS[preset_name], parse_overrides(items)))
 
 
 def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_set: list[str] = ()) -> Path:
     """Synthesize and prepare one scene under work/scenes/, with its background render; reused."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.config import preset
-    from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
+    from radar4dgs.datasets.synth import synthesize
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
     from radar4dgs.io.scene import read_scene
 
     scene = work / "scenes" / f"{preset_name}-{traffic}-s{seed}"
     if not (scene / "scene.json").is_file():
-        synthesize(preset(SynthConfig, preset_name, seed=seed, traffic=traffic_profile(traffic)), scene,
-                   overwrite=True, progress=False, preset=preset_name)
+        synthesize(synth_config(preset_name, seed, traffic), scene, overwrite=True, progress=False,
+                   preset=preset_name)
     if not (scene / "prepared" / "config.json").is_file():
-        run_prepare(scene, scene / "prepared", prepare_config(preset_name, list(prepare_set)), progress=False)
+        run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     if not (scene / BACKGROUND_DIR).is_dir():
         write_backgrounds(scene, read_scene(scene).test_indices)  # only the test frames are scored
     return scene

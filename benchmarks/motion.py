@@ -50,6 +50,7 @@ from radar4dgs.motion.metrics import motion_frontend_metrics
 from radar4dgs.motion.optical_flow import time_dis
 from radar4dgs.radar.objects import load_radar_objects
 from radar4dgs.train.fit_motion import FlowSamples, MotionConfig, evaluate_sceneflow, fit_field, run_fit, torch_threads
+from scene_configs import synth_config
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
 # mode: (use_flow, use_radar, use_velocity); both_velocity adds the radar objects' velocity term
@@ -86,18 +87,13 @@ def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic
     """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
     the radar stage runs and depth and masks come from the scene's gt/ (an upper bound)."""
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
-    from radar4dgs.datasets.synth.config import traffic_profile
+    from radar4dgs.datasets.synth import synthesize
 
     name = f"{preset_name}-s{seed}" + ("" if traffic == "calm" else f"-{traffic}")
     name += "" if fps is None else f"-{fps:g}hz"
     scene_dir = work / name
     if not (scene_dir / "scene.json").is_file():
-        overrides: dict = {"traffic": traffic_profile(traffic)} if traffic != "calm" else {}
-        if fps is not None:
-            overrides["fps"] = fps
-        synthesize(preset(SynthConfig, preset_name, seed=seed, **overrides), scene_dir, overwrite=True,
-                   progress=False)
+        synthesize(synth_config(preset_name, seed, traffic, fps), scene_dir, overwrite=True, progress=False)
     prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
     stages = ("radar",) if oracle else ("radar", "depth", "masks")
     run_prepare(scene_dir, prepared, preset(PrepareConfig, preset_name), only=stages, progress=False)

@@ -37,6 +37,7 @@ from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
 from radar4dgs.io.scene import read_scene
+from scene_configs import synth_config
 
 RESULTS = Path(__file__).parent / "results" / "reconstruct.json"
 FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotive-night"
@@ -46,15 +47,12 @@ def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm"
                   ) -> tuple[Path, Path, float]:
     """The demo's layout: work/seed<N>/{scene, prepared}."""
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
-    from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
+    from radar4dgs.datasets.synth import synthesize
 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
-        overrides: dict = {} if traffic == "calm" else {"traffic": traffic_profile(traffic)}
-        if fps is not None:
-            overrides["fps"] = fps
-        synthesize(preset(SynthConfig, preset_name, seed=seed, **overrides), scene, overwrite=True, progress=False,
+        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
                    preset=preset_name)
     run_prepare(scene, work / f"seed{seed}" / "prepared", preset(PrepareConfig, preset_name), progress=False)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started

@@ -26,9 +26,7 @@ import sys
 from pathlib import Path
 
 from radar4dgs.io.atomic import atomic_write_json
-
-sys.path.insert(0, str(Path(__file__).parent))
-from actors import prepare_config  # noqa: E402  (the benchmarks share this helper)
+from scene_configs import prepare_config, synth_config
 
 GRID_SETTINGS = ["init.max_static=30000", "densify.max_gaussians=40000"]
 RESULTS = Path(__file__).parent / "results"
@@ -39,20 +37,16 @@ def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, 
     """Synthesize (traffic profile, fps) and prepare one scene into work/scenes/<label>/ (PrepareConfig
     fields overridden by dotted ``prepare_set`` items); reused."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.config import preset
-    from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
+    from radar4dgs.datasets.synth import synthesize
     from radar4dgs.io.preview import dynamic_motion_statistics
     from radar4dgs.io.scene import read_scene
 
     label = f"{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz")
     scene = work / "scenes" / label
     if not (scene / "scene.json").is_file():
-        overrides: dict = {"traffic": traffic_profile(traffic)}
-        if fps is not None:
-            overrides["fps"] = fps
-        synthesize(preset(SynthConfig, preset_name, seed=seed, **overrides), scene, overwrite=True, progress=False,
+        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
                    preset=preset_name)
-    run_prepare(scene, scene / "prepared", prepare_config(preset_name, list(prepare_set)), progress=False)
+    run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     return scene, dynamic_motion_statistics(read_scene(scene))
 
 
