@@ -50,7 +50,7 @@ from radar4dgs.motion.metrics import motion_frontend_metrics
 from radar4dgs.motion.optical_flow import time_dis
 from radar4dgs.radar.objects import load_radar_objects
 from radar4dgs.train.fit_motion import FlowSamples, MotionConfig, evaluate_sceneflow, fit_field, run_fit, torch_threads
-from scene_configs import synth_config
+from scene_configs import prepare_config, synth_config
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
 # mode: (use_flow, use_radar, use_velocity); both_velocity adds the radar objects' velocity term
@@ -83,10 +83,11 @@ def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
 
 
 def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic: str = "calm",
-                  fps: float | None = None) -> tuple[Path, Path, dict]:
+                  fps: float | None = None, prepare_set: list[str] = ()) -> tuple[Path, Path, dict]:
     """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
-    the radar stage runs and depth and masks come from the scene's gt/ (an upper bound)."""
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    the radar stage runs and depth and masks come from the scene's gt/ (an upper bound).
+    ``prepare_set``: dotted ``KEY=VALUE`` overrides of the preset's PrepareConfig."""
+    from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.datasets.synth import synthesize
 
     name = f"{preset_name}-s{seed}" + ("" if traffic == "calm" else f"-{traffic}")
@@ -96,7 +97,7 @@ def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic
         synthesize(synth_config(preset_name, seed, traffic, fps), scene_dir, overwrite=True, progress=False)
     prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
     stages = ("radar",) if oracle else ("radar", "depth", "masks")
-    run_prepare(scene_dir, prepared, preset(PrepareConfig, preset_name), only=stages, progress=False)
+    run_prepare(scene_dir, prepared, prepare_config(preset_name, prepare_set), only=stages, progress=False)
     source = "oracle" if oracle else "prepared"
     info = {"radar_source": "prepared", "depth_source": source, "mask_source": source}
     return scene_dir, prepared, info
@@ -141,6 +142,8 @@ def main() -> None:
     parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="calm")
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     parser.add_argument("--frontend-only", action="store_true", help="score the front end only, fit no field")
+    parser.add_argument("--prepare-set", nargs="*", default=[],
+                        help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.for_flow=false)")
     args = parser.parse_args()
     if args.out is None:
         name = ("motion" + ("" if args.traffic == "calm" else f"-{args.traffic}")
@@ -151,7 +154,8 @@ def main() -> None:
     report: dict = {"command": "python benchmarks/motion.py " + " ".join(
         ["--seeds", *map(str, args.seeds), "--preset", args.preset, "--traffic", args.traffic]
         + (["--oracle"] if args.oracle else []) + ([] if args.fps is None else ["--fps", f"{args.fps:g}"])
-        + (["--frontend-only"] if args.frontend_only else [])),
+        + (["--frontend-only"] if args.frontend_only else [])
+        + (["--prepare-set", *args.prepare_set] if args.prepare_set else [])),
         "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks)"}
     if args.frontend_only:
         run_frontend(args, report)
@@ -166,7 +170,8 @@ def main() -> None:
     report["seeds"] = {}
     for seed in args.seeds:
         started = time.perf_counter()
-        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps)
+        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps,
+                                                  args.prepare_set)
         scene = read_scene(scene_dir)
         motion = dynamic_motion_statistics(scene)
         print(f"seed {seed} dynamic pixels move p50 {motion['p50']} / p90 {motion['p90']} / p99 {motion['p99']} "
@@ -261,7 +266,8 @@ def run_frontend(args: argparse.Namespace, report: dict) -> None:
     report["seeds"] = {}
     for seed in args.seeds:
         started = time.perf_counter()
-        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps)
+        scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps,
+                                                  args.prepare_set)
         scene = read_scene(scene_dir)
         config = preset(MotionConfig, args.preset, flow={"depth_source": info["depth_source"],
                                                          "mask_source": info["mask_source"]})

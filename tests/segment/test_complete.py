@@ -56,3 +56,34 @@ def test_completion_needs_depth_and_enough_returns():
     assert not complete_mask(base, None, objects, K, CAM_TO_EGO, CompletionConfig()).any()
     few = [project_points(returns[:2], K, 0.5)]
     assert not complete_mask(base, depth, few, K, CAM_TO_EGO, CompletionConfig(min_returns=3)).any()
+
+
+def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks(tiny_trained_run):
+    """CompletionConfig.for_flow (on by default): prepare writes the completed masks to masks/flow/,
+    the flow stage lifts those, the masks everything else reads stay the network's."""
+    import json
+
+    from radar4dgs.io.scene import read_mask_png, read_scene
+    from radar4dgs.io.scene_files import FLOW_MASKS
+
+    scene = read_scene(tiny_trained_run / "scene")
+    masks = tiny_trained_run / "scene" / "prepared" / "masks"
+    summary = json.loads((masks / "summary.json").read_text())
+    assert summary["completion"] == "flow masks"
+    network_hits = flow_hits = added = added_true = truth_total = 0
+    for i, frame in enumerate(scene.frames):
+        network = read_mask_png(masks / f"{frame.name}.png")
+        completed = read_mask_png(masks / FLOW_MASKS / f"{frame.name}.png")
+        truth = scene.load_optional("gt/dynamic_mask", i)
+        assert not (network & ~completed).any()  # completion only adds
+        assert summary["frames"][i]["dynamic_pixels"] == network.sum()
+        network_hits, flow_hits = network_hits + (network & truth).sum(), flow_hits + (completed & truth).sum()
+        added, added_true = added + (completed & ~network).sum(), added_true + (completed & ~network & truth).sum()
+        truth_total += truth.sum()
+    # Tiny seed 4: the network finds 0.65 of the moving pixels, the completion 0.93, adding almost
+    # only moving pixels.
+    assert flow_hits / truth_total >= network_hits / truth_total + 0.2
+    assert added_true / added >= 0.95
+    flow = json.loads((tiny_trained_run / "scene" / "prepared" / "flow" / "summary.json").read_text())
+    for pair in flow["per_pair"]:
+        assert pair["dynamic_pixels"] == read_mask_png(masks / FLOW_MASKS / f"{pair['frame']}.png").sum()

@@ -15,6 +15,11 @@ from radar4dgs.io.scene_format import SceneError
 if TYPE_CHECKING:
     from radar4dgs.io.scene_types import Camera
 
+# Subfolder of <prepared>/masks/ with the masks completed by the radar objects for the flow stage
+# alone (segment.config.CompletionConfig.for_flow): the segmentation stage writes it, the flow
+# stage reads it in place of the masks when it exists. Here because neither stage imports the other.
+FLOW_MASKS = "flow"
+
 
 def read_mask_png(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:
     """(H, W) bool mask of a 0/255 PNG (values above 127 are set); a :class:`SceneError` naming the

@@ -126,8 +126,9 @@ class FlowConfig:
     # Where metric depth comes from: "prepared" = <prepared>/depth/<frame>.npy (stage 3);
     # "oracle" = the scene's gt/depth (ablations and tests only).
     depth_source: Literal["prepared", "oracle"] = "prepared"
-    # Where dynamic masks come from: "prepared" = <prepared>/masks/<frame>.png (stage 4);
-    # "oracle" = the scene's gt/dynamic_mask.
+    # Where dynamic masks come from: "prepared" = <prepared>/masks/flow/<frame>.png, the masks
+    # completed by the radar objects for this stage, when stage 4 wrote them, else
+    # <prepared>/masks/<frame>.png; "oracle" = the scene's gt/dynamic_mask.
     mask_source: Literal["prepared", "oracle"] = "prepared"
     # Pair each training frame with the next training frame (skipping test frames, whose images
     # are held out for novel-view evaluation); False pairs every frame with the next frame.

@@ -37,6 +37,7 @@ import numpy as np
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
 from radar4dgs.io.scene import read_mask_png
+from radar4dgs.io.scene_files import FLOW_MASKS
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
 from radar4dgs.motion.object_hints import ObjectHint, frame_hints
@@ -75,12 +76,16 @@ def load_depth(scene, index: int, source: str, prepared_dir: str | Path | None,
 
 def load_mask(scene, index: int, source: str, prepared_dir: str | Path | None,
               mask_dir: str | Path | None = None) -> np.ndarray:
-    """(H, W) bool dynamic mask of frame ``index`` from ``source`` ("prepared" or "oracle")."""
+    """(H, W) bool dynamic mask of frame ``index`` from ``source`` ("prepared" or "oracle"). The
+    prepared masks are those the segmentation stage completed for this stage
+    (``<prepared>/masks/flow/``) when it wrote them, else ``<prepared>/masks/``; ``mask_dir`` overrides both."""
     if source == "oracle":
         return scene.load_optional("gt/dynamic_mask", index)
     if source != "prepared":
         raise ValueError(f"unknown mask source {source!r}; choose 'prepared' or 'oracle'")
     folder = Path(mask_dir) if mask_dir is not None else Path(prepared_dir) / "masks"
+    if mask_dir is None and (folder / FLOW_MASKS).is_dir():
+        folder = folder / FLOW_MASKS
     path = folder / f"{scene.frames[index].name}.png"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no prepared dynamic mask in {folder} (run the segmentation "

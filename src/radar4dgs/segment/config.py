@@ -46,6 +46,11 @@ class CompletionConfig:
     # static layer under removed cars 16.87 -> 16.39 dB (101; benchmarks/results/masks-training.json).
     # Not broken down; likely, a fast car the masks now cover goes to the field, which cannot follow it.
     enabled: bool = False  # complete the masks with the radar objects (skipped without <prepared>/radar/objects.json)
+    # With enabled off, still write completed masks for the flow stage alone (<prepared>/masks/flow/):
+    # the flow stage then steps the whole car the radar sees, not the part the network found, while
+    # training, actors and evaluation keep the network's masks. Decided on the rush 5 Hz tuning
+    # seeds 214 / 215 (docs/pipeline/segmentation.md).
+    for_flow: bool = True
     min_returns: int = 3  # objects with fewer returns in front of the camera are left to the network
     margin_m: float = 0.3  # grow the hull by this many metres at the object's median depth
     depth_tolerance_m: float = 2.5  # keep hull pixels whose depth is within this of the returns' depth range

@@ -5,7 +5,9 @@
 ``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
 ``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named. With
 ``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
-``<prepared>/radar/objects.json`` (``segment/complete.py``).
+``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (on) and
+``enabled`` off, the completed masks go to ``<prepared>/masks/flow/<frame>.png`` instead, which only
+the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import torch
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_save_npy, atomic_write_bytes, atomic_write_json
 from radar4dgs.io.scene import Scene
+from radar4dgs.io.scene_files import FLOW_MASKS
 from radar4dgs.radar.objects import OBJECTS_FILE, load_radar_objects
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
 from radar4dgs.segment.complete import complete_mask, frame_objects
@@ -177,12 +180,21 @@ def segment_scene(scene: Scene, prepared_dir: Path | None, config: SegInferConfi
 
 
 def completion_objects(prepared_dir: Path, config: SegInferConfig) -> list | None:
-    """The radar objects of every frame for the mask completion, or None when it is off or the
-    prepared folder has no ``radar/objects.json`` (masks made without the radar stage: oracle or
-    estimated dynamic points)."""
-    if not config.completion.enabled or not (prepared_dir / "radar" / OBJECTS_FILE).is_file():
+    """The radar objects of every frame for the mask completion, or None when it is off (for the
+    masks and for the flow stage) or the prepared folder has no ``radar/objects.json`` (masks made
+    without the radar stage: oracle or estimated dynamic points)."""
+    wanted = config.completion.enabled or config.completion.for_flow
+    if not wanted or not (prepared_dir / "radar" / OBJECTS_FILE).is_file():
         return None
     return load_radar_objects(prepared_dir)
+
+
+def completion_summary(completed: bool, config: SegInferConfig) -> str:
+    """What the summary says of the completion: "radar objects" (the masks are completed), "flow
+    masks" (only masks/flow/ is) or "off"."""
+    if not completed:
+        return "off"
+    return "radar objects" if config.completion.enabled else f"{FLOW_MASKS} masks"
 
 
 def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig | None = None,
@@ -204,9 +216,14 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
         name = scene.frames[i].name
         mask = result.mask(config.threshold)
         if objects is not None:
-            mask = complete_mask(mask, depth_for_baseline(scene, i, Path(prepared_dir)),
-                                 frame_objects(scene, i, objects[i]), scene.camera.K, scene.camera.cam_to_ego,
-                                 config.completion)
+            completed = complete_mask(mask, depth_for_baseline(scene, i, Path(prepared_dir)),
+                                      frame_objects(scene, i, objects[i]), scene.camera.K, scene.camera.cam_to_ego,
+                                      config.completion)
+            if config.completion.enabled:
+                mask = completed
+            else:
+                (out / FLOW_MASKS).mkdir(exist_ok=True)
+                atomic_write_bytes(out / FLOW_MASKS / f"{name}.png", encode_png(completed))
         atomic_write_bytes(out / f"{name}.png", encode_png(mask))
         if config.save_prob:  # completed pixels count as certain, so prob > threshold is the PNG
             atomic_save_npy(out / f"{name}_prob.npy", np.maximum(result.prob, mask).astype(np.float16))
@@ -214,6 +231,6 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     elapsed = time.perf_counter() - start
     summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
                "seconds_per_frame": round(elapsed / max(len(frames), 1), 4),
-               "completion": "radar objects" if objects is not None else "off"}
+               "completion": completion_summary(objects is not None, config)}
     atomic_write_json(out / "summary.json", summary)
     return summary
