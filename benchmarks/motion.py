@@ -303,6 +303,8 @@ def summarize_frontend(report: dict) -> None:
         "object_velocity_error_median_per_seed": [s["radar_objects"]["object_velocity_error_median"] for s in seeds],
         "object_velocity_error_p90_per_seed": p90,
         "object_velocity_p90_le_0.5_seeds": int(sum(v is not None and v <= 0.5 for v in p90)),
+        "object_velocity_at_returns_error_p90_per_seed": [
+            s["radar_objects"].get("object_velocity_at_returns_error_p90") for s in seeds],
         **trusted_summary(seeds)}
 
 

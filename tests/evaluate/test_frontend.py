@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "radar"))
 from _radar_helpers import write_tiny_scene  # noqa: E402
@@ -90,7 +92,7 @@ def test_object_velocity_metric_in_closed_form(tmp_path):
         pose[:2, 3] = [30.0, 5.0]
     truth = [{"id": "ego", "kind": "ego"},
              {"id": 7, "kind": "moving", "poses": [p.tolist() for p in poses], "velocity": [10.0, 0.0, 0.0],
-              "velocities": [[10.0, 0.0, 0.0], [12.0, 0.0, 0.0], [14.0, 0.0, 0.0]]},
+              "velocities": [[10.0, 0.0, 0.0], [12.0, 0.0, 0.0], [14.0, 0.0, 0.0]], "yaw_rates": [0.5, 0.0, 0.0]},
              {"id": 8, "kind": "parked", "poses": [p.tolist() for p in parked], "velocity": [0.0, 0.0, 0.0]}]
     scene = dataclasses.replace(scene, extra={"synthetic": {"objects": truth}})
     frames = [[_object((11, 1), (10, 1), (10, 0), (9, 0), 5)],
@@ -109,6 +111,10 @@ def test_object_velocity_metric_in_closed_form(tmp_path):
     for key in ("velocity", "scan", "radial"):
         assert metrics[f"object_{key}_error_median"] == pytest.approx(0.5)
         assert metrics[f"object_{key}_error_p90"] == pytest.approx(0.9)
+    # Frame 0 turns at 0.5 rad/s: the body point at the returns' centroid, (1, 1) m from the pose,
+    # moves at (10, 0) + 0.5 (-1, 1) = (9.5, 0.5) m/s, 0.71 m/s from the tracked (10, 1).
+    assert metrics["object_velocity_at_returns_error_median"] == pytest.approx(0.5 ** 0.5 / 2)
+    assert metrics["object_velocity_at_returns_error_p90"] == pytest.approx(0.9 * 0.5 ** 0.5)
     # Without objects.json (a folder prepared before it existed) the metric is skipped with a note.
     (root / "prepared" / "radar" / "objects.json").unlink()
     metrics, notes = object_velocity_metrics(scene, root / "prepared")
@@ -181,3 +187,17 @@ def test_frontend_eval_on_the_converted_aimotive_clip(tmp_path, capsys):
     assert set(report["skipped"]) == {"depth", "masks", "flow"}
     assert all(reason.startswith("no ground truth: the scene has") for reason in report["skipped"].values())
     assert "radar.dynamic_precision" in printed and "depth skipped" in printed
+
+
+@given(st.lists(st.floats(-30, 30), min_size=7, max_size=7))
+def test_body_velocity_is_rigid(values):
+    from radar4dgs.evaluate.frontend import body_velocity_at
+
+    v, yaw_rate, origin, point = np.array(values[:2]), values[2] / 30, np.array(values[3:5]), np.array(values[5:7])
+    at = body_velocity_at(v, yaw_rate, origin, point)
+    # A rigid body's two points move at velocities whose difference is perpendicular to the segment
+    # between them, |omega| times as long.
+    offset = point - origin
+    assert abs(float((at - v) @ offset)) <= 1e-9 * (1 + float(offset @ offset))
+    assert np.linalg.norm(at - v) == pytest.approx(abs(yaw_rate) * np.linalg.norm(offset), abs=1e-9)
+    np.testing.assert_allclose(body_velocity_at(v, yaw_rate, origin, origin), v)

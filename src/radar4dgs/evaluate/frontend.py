@@ -26,7 +26,12 @@ Radar metrics:
         (``velocities[frame]`` where given, else ``velocity``): ``object_velocity_error_*`` for the
         tracked velocity, ``object_scan_error_*`` for the scan's own fit, ``object_radial_error_*``
         for the radial-only baseline (the velocity component along the mean line of sight only);
-        median and p90 over ``object_count`` matched objects. ``object_unmatched``: objects with no
+        median and p90 over ``object_count`` matched objects. ``object_velocity_at_returns_error_*``
+        scores the tracked velocity against the ground-truth body's velocity at the returns'
+        centroid, ``v + omega J (c - p)`` with the object's yaw rate ``omega`` (``yaw_rates``, 0
+        where absent): a turning body's points move at different velocities, and the tracker
+        estimates the one at its returns, which is what the velocity term uses; it equals the
+        first for objects that do not turn. ``object_unmatched``: objects with no
         moving ground-truth object within the gate. ``object_observable_fraction``: of the matched
         objects, those whose returns spread enough in azimuth for a full per-scan fit.
 """
@@ -148,12 +153,22 @@ def moving_ground_truth(scene: Scene) -> list[dict]:
             and len(o.get("poses") or ()) == len(scene) and ("velocity" in o or "velocities" in o)]
 
 
-def _truth_at(obj: dict, frame: int) -> tuple[np.ndarray, np.ndarray]:
-    """(2,) planar position (pose translation) and (2,) planar world velocity of ``obj`` at ``frame``."""
-    velocities = obj.get("velocities")
+def _truth_at(obj: dict, frame: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(2,) planar position (pose translation), (2,) planar world velocity and yaw rate (rad/s; 0
+    where the scene records none) of ``obj`` at ``frame``."""
+    velocities, yaw_rates = obj.get("velocities"), obj.get("yaw_rates")
     velocity = velocities[frame] if velocities is not None and len(velocities) > frame else None
     velocity = obj["velocity"] if velocity is None else velocity
-    return np.asarray(obj["poses"][frame], dtype=np.float64)[:2, 3], np.asarray(velocity, dtype=np.float64)[:2]
+    yaw_rate = float(yaw_rates[frame]) if yaw_rates is not None and len(yaw_rates) > frame else 0.0
+    return (np.asarray(obj["poses"][frame], dtype=np.float64)[:2, 3], np.asarray(velocity, dtype=np.float64)[:2],
+            yaw_rate)
+
+
+def body_velocity_at(velocity: np.ndarray, yaw_rate: float, origin: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """(2,) planar velocity of the rigid body point ``point`` (2,) of a body whose ``origin`` (2,)
+    moves at ``velocity`` (2,) while it turns at ``yaw_rate``: ``v + omega J (point - origin)``."""
+    offset = np.asarray(point, dtype=np.float64) - origin
+    return velocity + yaw_rate * np.array([-offset[1], offset[0]])
 
 
 def _quantiles(prefix: str, errors: list[float]) -> dict[str, float | None]:
@@ -164,7 +179,7 @@ def _quantiles(prefix: str, errors: list[float]) -> dict[str, float | None]:
 
 def object_velocity_metrics(scene: Scene, prepared_dir: str | Path) -> tuple[dict[str, Any], list[str]]:
     """The ``object_*`` radar metrics (module doc) and notes on what was unavailable."""
-    errors: dict[str, list[float]] = {"velocity": [], "scan": [], "radial": []}
+    errors: dict[str, list[float]] = {"velocity": [], "velocity_at_returns": [], "scan": [], "radial": []}
     counts = {"object_count": None, "object_unmatched": None, "object_observable_fraction": None}
     empty = {**counts, **{k: v for key in errors for k, v in _quantiles(f"object_{key}_error", []).items()}}
     truth = moving_ground_truth(scene)
@@ -184,15 +199,17 @@ def object_velocity_metrics(scene: Scene, prepared_dir: str | Path) -> tuple[dic
         for obj in objects:
             if obj.num_returns < OBJECT_MIN_RETURNS:
                 continue
-            gaps = [float(np.linalg.norm(obj.centroid[:2] - p)) for p, _ in places]
+            gaps = [float(np.linalg.norm(obj.centroid[:2] - p)) for p, _, _ in places]
             if min(gaps) > OBJECT_MATCH_GATE:
                 unmatched += 1
                 continue
-            v_true = places[int(np.argmin(gaps))][1]
+            origin, v_true, yaw_rate = places[int(np.argmin(gaps))]
             observable += bool(obj.observable)
             for key, v in (("velocity", obj.velocity), ("scan", obj.frame_velocity),
                            ("radial", obj.radial_velocity)):
                 errors[key].append(float(np.linalg.norm(v[:2] - v_true)))
+            at_returns = body_velocity_at(v_true, yaw_rate, origin, obj.centroid[:2])
+            errors["velocity_at_returns"].append(float(np.linalg.norm(obj.velocity[:2] - at_returns)))
     scored = len(errors["velocity"])
     out: dict[str, Any] = {"object_count": scored, "object_unmatched": unmatched,
                            "object_observable_fraction": _ratio(observable, scored)}
