@@ -58,17 +58,32 @@ def test_completion_needs_depth_and_enough_returns():
     assert not complete_mask(base, depth, few, K, CAM_TO_EGO, CompletionConfig(min_returns=3)).any()
 
 
-def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks(tiny_trained_run):
-    """CompletionConfig.for_flow (on by default): prepare writes the completed masks to masks/flow/,
-    the flow stage lifts those, the masks everything else reads stay the network's."""
-    import json
 
+def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks(tiny_trained_run, tmp_path):
+    """CompletionConfig.for_flow: the masks stage writes the completed masks to masks/flow/, the flow
+    stage lifts those, the masks everything else reads stay the network's."""
+    import json
+    import shutil
+
+    from radar4dgs.config import preset
     from radar4dgs.io.scene import read_mask_png, read_scene
     from radar4dgs.io.scene_files import FLOW_MASKS
+    from radar4dgs.motion.config import FlowConfig
+    from radar4dgs.motion.flow import prepare_flow
+    from radar4dgs.segment.config import SegInferConfig
+    from radar4dgs.segment.infer import prepare_masks
+    from radar4dgs.train.fit_motion import torch_threads
 
     scene = read_scene(tiny_trained_run / "scene")
-    masks = tiny_trained_run / "scene" / "prepared" / "masks"
-    summary = json.loads((masks / "summary.json").read_text())
+    prepared = tmp_path / "prepared"
+    for stage in ("radar", "depth"):
+        shutil.copytree(tiny_trained_run / "scene" / "prepared" / stage, prepared / stage)
+    config = preset(SegInferConfig, "tiny")
+    config.completion.for_flow = True
+    with torch_threads(1):
+        summary = prepare_masks(scene, prepared, config)
+        flow = prepare_flow(scene, prepared, preset(FlowConfig, "tiny"))
+    masks = prepared / "masks"
     assert summary["completion"] == "flow masks"
     network_hits = flow_hits = added = added_true = truth_total = 0
     for i, frame in enumerate(scene.frames):
@@ -84,6 +99,9 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     # only moving pixels.
     assert flow_hits / truth_total >= network_hits / truth_total + 0.2
     assert added_true / added >= 0.95
-    flow = json.loads((tiny_trained_run / "scene" / "prepared" / "flow" / "summary.json").read_text())
     for pair in flow["per_pair"]:
         assert pair["dynamic_pixels"] == read_mask_png(masks / FLOW_MASKS / f"{pair['frame']}.png").sum()
+    # By default (for_flow off) the training run's prepared folder has no flow masks.
+    assert not (tiny_trained_run / "scene" / "prepared" / "masks" / FLOW_MASKS).exists()
+    assert json.loads((tiny_trained_run / "scene" / "prepared" / "masks" / "summary.json").read_text())[
+        "completion"] == "off"
