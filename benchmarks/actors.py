@@ -200,6 +200,14 @@ def summary(rows: list[dict]) -> dict:
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
         out[key] = float(np.mean(values)) if values else None
+    # Which kinds of mover the discovery misses: [matched, missed] per class, summed over the scenes.
+    by_class: dict[str, list[int]] = {}
+    for row in rows:
+        for pair in row.get("pairs", []):
+            by_class.setdefault(pair["class"], [0, 0])[0] += 1
+        for miss in row.get("missed", []):
+            by_class.setdefault(miss["class"], [0, 0])[1] += 1
+    out["found_missed_by_class"] = by_class
     return out
 
 

@@ -77,7 +77,8 @@ def match_actors(actors, movers: list[Mover]) -> list[tuple[int, int]]:
 def score_actors(actors, movers: list[Mover]) -> dict:
     """Recall over the counted movers (visible in >= MIN_VISIBLE_FRAMES frames), precision over the
     actors, spurious actors (matched to nothing, counted movers or not), median planar centroid and
-    velocity errors over every common frame of the matched pairs."""
+    velocity errors over every common frame of the matched pairs; ``missed``, the counted movers no
+    actor matched (id, class, frames visible)."""
     counted = {j for j, m in enumerate(movers) if len(m.visible) >= MIN_VISIBLE_FRAMES}
     pairs = match_actors(actors, movers)
     matched_movers = {j for _, j in pairs}
@@ -93,4 +94,6 @@ def score_actors(actors, movers: list[Mover]) -> dict:
             "spurious": len(actors) - len(pairs),
             "centroid_error_median": float(np.median(centroid)) if centroid else None,
             "velocity_error_median": float(np.median(velocity)) if velocity else None,
-            "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category} for i, j in pairs]}
+            "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category} for i, j in pairs],
+            "missed": [{"mover": movers[j].id, "class": movers[j].category,
+                        "visible_frames": int(len(movers[j].visible))} for j in sorted(counted - matched_movers)]}
