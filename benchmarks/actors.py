@@ -1,11 +1,12 @@
 """Benchmark of actor discovery and clean backgrounds (issue 24) on synthetic scenes with ground truth.
 
-    python benchmarks/actors.py --seeds 106 107 108 109 110 [--traffic realistic] [--preset tiny]
+    python benchmarks/actors.py --seeds 106 107 108 109 110 [--traffic realistic] [--fps 5] [--preset tiny]
                                 [--iterations 600] [--work /tmp/radar4dgs-actors-bench]
                                 [--out benchmarks/results/actors.json] [--run RUN ...]
 
 Seeds fixed before looking, the project's convention: realistic traffic 101-105 tune (the discovery
-thresholds were set on 101 only), 106-110 report. Per seed: `radar4dgs synth --traffic realistic`
+thresholds were set on 101 only), 106-110 report; the hard set (``--traffic rush --fps 5``) 214-215 tune
+(none of its thresholds was set on them), 209-213 report. Per seed: `radar4dgs synth --traffic realistic`
 at --preset, prepared, its background render (the generator's same world without its moving objects,
 ``gt/background``), trained with the preset's config and --iterations (CPU budget), then:
 
@@ -39,16 +40,18 @@ from scene_configs import prepare_config, synth_config
 RESULTS = Path(__file__).parent / "results"
 
 
-def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_set: list[str] = ()) -> Path:
-    """Synthesize and prepare one scene under work/scenes/, with its background render; reused."""
+def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_set: list[str] = (),
+                fps: float | None = None) -> Path:
+    """Synthesize and prepare one scene under work/scenes/, with its background render; reused.
+    ``fps``: the scenes' frame rate (None: the preset's)."""
     from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.datasets.synth import synthesize
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
     from radar4dgs.io.scene import read_scene
 
-    scene = work / "scenes" / f"{preset_name}-{traffic}-s{seed}"
+    scene = work / "scenes" / (f"{preset_name}-{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz"))
     if not (scene / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic), scene, overwrite=True, progress=False,
+        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
                    preset=preset_name)
     if not (scene / "prepared" / "config.json").is_file():
         run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
@@ -215,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="*", default=[106, 107, 108, 109, 110])
     parser.add_argument("--traffic", default="realistic")
+    parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     parser.add_argument("--preset", default="tiny")
     parser.add_argument("--iterations", type=int, default=600)
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-actors-bench"))
@@ -234,15 +238,15 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     rows: list[dict] = []
-    settings = {"traffic": args.traffic, "preset": args.preset, "iterations": args.iterations, "seeds": args.seeds,
-                "prepare_set": args.prepare_set}
+    settings = {"traffic": args.traffic, "fps": args.fps, "preset": args.preset, "iterations": args.iterations,
+                "seeds": args.seeds, "prepare_set": args.prepare_set}
     # Runs given with --run were trained elsewhere: the preset and iterations here say nothing about them.
     document = {"settings": settings if args.seeds else {}, "runs": [str(p) for p in args.run], "scenes": rows}
     jobs = [(f"s{seed}", seed) for seed in args.seeds] + [(str(path), path) for path in args.run]
     for label, job in jobs:
         start = time.perf_counter()
         if isinstance(job, int):
-            scene = build_scene(job, args.traffic, args.preset, args.work, args.prepare_set)
+            scene = build_scene(job, args.traffic, args.preset, args.work, args.prepare_set, args.fps)
             run_dir = train_scene(scene, args.preset, args.iterations, args.work / "runs" / scene.name)
         else:
             run_dir = job
