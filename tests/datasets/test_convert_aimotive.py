@@ -130,6 +130,27 @@ def test_real_sample(tmp_path):
     assert image.shape == (176, 320, 3)
 
 
+def test_real_sample_without_its_hood(tmp_path):
+    full = read_scene(convert_aimotive(FIXTURE, tmp_path / "full", scale=0.25, progress=False))
+    cropped = read_scene(convert_aimotive(FIXTURE, tmp_path / "cropped", scale=0.25, progress=False,
+                                          crop_bottom=0.2))
+    assert (cropped.camera.width, cropped.camera.height) == (320, 141)
+    # The same camera, shorter: focal lengths and principal point as before (the y scale differs by
+    # the rounding of 563 rows to 141, 0.2 %).
+    np.testing.assert_allclose(cropped.camera.K, full.camera.K, rtol=3e-3)
+    # The night clip's hood is dark (mean grey ~27 at the bottom of the uncropped frames); what is
+    # left at the cropped bottom is the lit road (mean ~106; > 45 even in the corners, where the
+    # hood's curved edge comes highest).
+    def mean_grey(scene):
+        return np.mean([scene.load_image(i).mean(2) for i in range(0, len(scene), 7)], axis=0)
+    assert mean_grey(full)[-4:].mean() < 40
+    bottom = mean_grey(cropped)[-1]
+    assert bottom.mean() > 90 and bottom.min() > 45
+    assert "hood" in cropped.source["images"]
+    with pytest.raises(ValueError, match="crop-bottom"):
+        convert_aimotive(FIXTURE, tmp_path / "bad", crop_bottom=0.6, progress=False)
+
+
 def test_calibration_is_cross_checked_and_recorded(tmp_path):
     """extrinsic_matrices.json must agree with calibration.json; source.calibration says what was
     used, the accuracies the file states and what was left (issue 27)."""
