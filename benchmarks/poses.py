@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.config import preset
+from radar4dgs.datasets.convert.aimotive import HOOD_FRACTION
 from radar4dgs.io.atomic import atomic_write_json
 
 RESULTS = Path(__file__).parent / "results" / "poses.json"
@@ -342,9 +343,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--aimotive", action="store_true")
     parser.add_argument("--aimotive-cells", nargs="+", default=["before", "after", "poses-only", "appearance-only"],
                         choices=["before", "after", "poses-only", "appearance-only"])
-    parser.add_argument("--aimotive-crop-bottom", type=float, default=0.0,
-                        help="convert the clip with this fraction of rows cut off at the bottom (the hood); results "
-                             "go to 'aimotive_hood' with the uncropped 'before' run scored on the kept rows")
+    parser.add_argument("--aimotive-crop-bottom", type=float, default=HOOD_FRACTION,
+                        help="fraction of the clip's rows cut off at the bottom (the hood; the converter's default). "
+                             "0 keeps them (work folder aimotive/); otherwise the uncropped 'before' run, when "
+                             "there, is also scored on the kept rows")
     parser.add_argument("--aimotive-picture", type=Path, default=None,
                         help="ground truth | before | after of a test frame (docs/images/aimotive_pose_refine.jpg)")
     parser.add_argument("--out", type=Path, default=RESULTS)
@@ -365,9 +367,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.figure and args.seeds:
         correction_figure(args.work / f"seed{args.seeds[0]}", args.figure)
     if args.aimotive:
-        key = "aimotive" if not args.aimotive_crop_bottom else "aimotive_hood"
-        results[key] = {**run_aimotive(args), **({"crop_bottom": args.aimotive_crop_bottom}
-                                                 if args.aimotive_crop_bottom else {})}
+        key = "aimotive" if args.aimotive_crop_bottom else "aimotive_uncropped"
+        results[key] = {**results.get(key, {}), **run_aimotive(args), "crop_bottom": args.aimotive_crop_bottom}
         atomic_write_json(args.out, results)
     return 0
 

@@ -140,7 +140,7 @@ def aimotive(work: Path, preset_name: str) -> dict:
     scene = work / "aimotive" / "scene"
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
-        convert_aimotive(FIXTURE, scene, scale=0.25, overwrite=True, progress=False)  # 320x176, as `small`
+        convert_aimotive(FIXTURE, scene, scale=0.25, overwrite=True, progress=False)  # 320x141: 320x176 less the hood
     run_prepare(scene, None, preset(PrepareConfig, preset_name), progress=False)
     prepare_seconds = time.perf_counter() - started
     result = train_and_eval(scene, scene / "prepared", work / "aimotive" / "ours", preset_name, "ours")

@@ -92,7 +92,8 @@ def test_convert_fake_sequence(tmp_path):
     src = _fake_sequence(tmp_path / "seq")
     out = convert_aimotive(src, tmp_path / "scene", scale=0.5, progress=False)
     scene = read_scene(out)
-    assert (scene.camera.width, scene.camera.height) == (32, 16)
+    # 64x32 at 0.5, the bottom 20 % (6 of 32 rows, the hood) cut off by default: 26 rows -> 13.
+    assert (scene.camera.width, scene.camera.height) == (32, 13)
     assert scene.source["poses_from_radar"] is True
     assert scene.frames[1].timestamp - scene.frames[0].timestamp == pytest.approx(0.0667, abs=1e-3)
     # 20 m/s straight ahead for 5 frames.
@@ -118,7 +119,8 @@ def test_missing_files_are_named(tmp_path, capsys):
 def test_real_sample(tmp_path):
     out = convert_aimotive(FIXTURE, tmp_path / "aim", scale=0.25, progress=False)
     scene = read_scene(out)
-    assert len(scene) == 50 and (scene.camera.width, scene.camera.height) == (320, 176)
+    # 1280x704 at 0.25, the bottom 20 % (the hood) cut off by default.
+    assert len(scene) == 50 and (scene.camera.width, scene.camera.height) == (320, 141)
     duration = scene.frames[-1].timestamp - scene.frames[0].timestamp
     assert duration == pytest.approx(3.27, abs=0.05)
     # ~30 m/s for 3.27 s, straight (the heading alignment removes the mount-yaw artefact).
@@ -127,11 +129,11 @@ def test_real_sample(tmp_path):
     assert sum(scene.load_optional("gt/radar_labels", i).sum() for i in range(len(scene))) > 100
     # Doppler of points in moving boxes matches d . v_rel (the azimuth-sign check), see module doc.
     image = scene.load_image(0)
-    assert image.shape == (176, 320, 3)
+    assert image.shape == (141, 320, 3)
 
 
 def test_real_sample_without_its_hood(tmp_path):
-    full = read_scene(convert_aimotive(FIXTURE, tmp_path / "full", scale=0.25, progress=False))
+    full = read_scene(convert_aimotive(FIXTURE, tmp_path / "full", scale=0.25, progress=False, crop_bottom=0.0))
     cropped = read_scene(convert_aimotive(FIXTURE, tmp_path / "cropped", scale=0.25, progress=False,
                                           crop_bottom=0.2))
     assert (cropped.camera.width, cropped.camera.height) == (320, 141)

@@ -229,7 +229,7 @@ def test_aimotive_prepares_radar_and_depth(tmp_path, monkeypatch):
     for frame in scene.frames:
         depth = np.load(root / "prepared" / "depth" / f"{frame.name}.npy")
         sky = read_mask_png(root / "prepared" / "depth" / "sky" / f"{frame.name}.png")
-        assert depth.shape == (176, 320) and 0.1 < sky.mean() < 0.9
+        assert depth.shape == (141, 320) and 0.1 < sky.mean() < 0.9
         ground = depth[~sky]
         assert np.isfinite(ground).all() and (ground > 0).all()
         assert np.isposinf(depth[sky]).all()
