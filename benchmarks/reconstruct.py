@@ -133,7 +133,7 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
                                          for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn"))}
 
 
-def aimotive(work: Path, preset_name: str) -> dict:
+def aimotive(work: Path, preset_name: str, threads: int | None = None) -> dict:
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
     from radar4dgs.datasets.convert.aimotive import convert_aimotive
 
@@ -143,13 +143,13 @@ def aimotive(work: Path, preset_name: str) -> dict:
         convert_aimotive(FIXTURE, scene, scale=0.25, overwrite=True, progress=False)  # 320x141: 320x176 less the hood
     run_prepare(scene, None, preset(PrepareConfig, preset_name), progress=False)
     prepare_seconds = time.perf_counter() - started
-    result = train_and_eval(scene, scene / "prepared", work / "aimotive" / "ours", preset_name, "ours")
+    result = train_and_eval(scene, scene / "prepared", work / "aimotive" / "ours", preset_name, "ours", threads)
     return {"prepare_seconds": prepare_seconds, **result}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[1, 2, 3], help="synthetic seeds (none: aimotive only)")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--methods", nargs="+", default=["ours", "static"])
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-recon-bench"))
@@ -205,7 +205,7 @@ def main() -> None:
         print("resume:", json.dumps(results["resume"]))
         atomic_write_json(args.out, results)
     if args.aimotive:
-        results["aimotive"] = aimotive(args.work, args.preset)
+        results["aimotive"] = aimotive(args.work, args.preset, args.threads)
         print("aimotive:", json.dumps(results["aimotive"]))
         atomic_write_json(args.out, results)
 
