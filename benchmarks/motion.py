@@ -303,8 +303,6 @@ def summarize_frontend(report: dict) -> None:
         "object_velocity_error_median_per_seed": [s["radar_objects"]["object_velocity_error_median"] for s in seeds],
         "object_velocity_error_p90_per_seed": p90,
         "object_velocity_p90_le_0.5_seeds": int(sum(v is not None and v <= 0.5 for v in p90)),
-        "object_velocity_at_returns_error_p90_per_seed": [
-            s["radar_objects"].get("object_velocity_at_returns_error_p90") for s in seeds],
         **trusted_summary(seeds)}
 
 
@@ -313,7 +311,9 @@ def trusted_summary(seeds: list[dict]) -> dict:
     failures = {name: {"objects": sum(s["radar_objects"]["failures"][name]["objects"] for s in seeds),
                        "above_0.5": sum(s["radar_objects"]["failures"][name]["above_0.5"] for s in seeds)}
                 for name in FAILURE_CLASSES}
-    return {"trusted_object_velocity_p90_per_seed": [s["radar_objects"]["trusted"]["p90"] for s in seeds],
+    return {"object_velocity_at_returns_error_p90_per_seed": [
+                s["radar_objects"].get("object_velocity_at_returns_error_p90") for s in seeds],
+            "trusted_object_velocity_p90_per_seed": [s["radar_objects"]["trusted"]["p90"] for s in seeds],
             "trusted_object_share_per_seed": [s["radar_objects"]["trusted"]["share"] for s in seeds],
             "object_velocity_failures": failures}
 
