@@ -250,26 +250,24 @@ def run_seed(seed: int, args: argparse.Namespace) -> dict:
     return result
 
 
-def aimotive_picture(root: Path, path: Path) -> str:
-    """Ground truth | before | after (renders at the recorded pose) of the aiMotive clip's middle
-    test frame, labelled, as a JPEG at ``path``; returns the frame's name."""
+def frame_picture(scene_dir: Path, runs: list[tuple[Path, str]], path: Path) -> str:
+    """Ground truth | each run's render (at the recorded pose) of the middle test frame of the scene
+    at ``scene_dir``, labelled "label: PSNR", as a JPEG at ``path``; returns the frame's name. A
+    shorter render (a hood-cropped run) is padded black at the bottom."""
     import cv2
 
     from radar4dgs.evaluate.visualize import side_by_side
     from radar4dgs.io.scene import read_scene
 
-    scene = read_scene(root / "scene")
+    scene = read_scene(scene_dir)
     index = scene.test_indices[len(scene.test_indices) // 2]
     name = scene.frames[index].name
-    panels = [scene.load_image(index)]
-    labels = ["ground truth"]
-    for run in ("before", "after"):
-        render = cv2.imread(str(root / f"{run}-run" / "renders" / "nvs" / f"{name}.png"))
-        image = cv2.cvtColor(render, cv2.COLOR_BGR2RGB)
-        metrics = json.loads((root / f"{run}-run" / "metrics.json").read_text())
+    panels, labels = [scene.load_image(index)], ["ground truth"]
+    for run, label in runs:
+        panels.append(cv2.cvtColor(cv2.imread(str(run / "renders" / "nvs" / f"{name}.png")), cv2.COLOR_BGR2RGB))
+        metrics = json.loads((run / "metrics.json").read_text())
         psnr = next(e["psnr"] for e in metrics["per_frame"]["nvs"] if e["frame"] == name)
-        panels.append(image)
-        labels.append(f"{run}: {psnr:.1f} dB")
+        labels.append(f"{label}: {psnr:.1f} dB")
     path.parent.mkdir(parents=True, exist_ok=True)
     picture = cv2.cvtColor(side_by_side(panels, labels), cv2.COLOR_RGB2BGR)
     cv2.imwrite(str(path), picture, [cv2.IMWRITE_JPEG_QUALITY, 90])
@@ -296,12 +294,17 @@ def run_aimotive(args: argparse.Namespace) -> dict:
         out[name] = train_and_eval(scene, root / "prepared", root / f"{name}-run", args.preset, args.iterations,
                                    refine, appearance, args.poses)
         print(f"aimotive {name}: {out[name]}", flush=True)
-    if args.aimotive_picture:
-        out["picture_frame"] = aimotive_picture(root, args.aimotive_picture)
+    if args.aimotive_picture:  # ground truth | before | after refinement
+        out["picture_frame"] = frame_picture(scene, [(root / f"{r}-run", r) for r in ("before", "after")],
+                                                 args.aimotive_picture)
     uncropped = args.work / "aimotive" / "before-run"
     if crop and (uncropped / "renders" / "nvs").is_dir():
         out["uncropped_before_on_kept_rows"] = kept_rows_psnr(uncropped, args.work / "aimotive" / "scene",
                                                               read_scene_rows(scene))
+        if args.aimotive_hood_picture:
+            out["hood_picture_frame"] = frame_picture(
+                args.work / "aimotive" / "scene", [(uncropped, "with the hood"), (root / "before-run", "hood cut off")],
+                args.aimotive_hood_picture)
     return out
 
 
@@ -347,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="fraction of the clip's rows cut off at the bottom (the hood; the converter's default). "
                              "0 keeps them (work folder aimotive/); otherwise the uncropped 'before' run, when "
                              "there, is also scored on the kept rows")
+    parser.add_argument("--aimotive-hood-picture", type=Path, default=None,
+                        help="ground truth | uncropped | cropped 'before' runs of a test frame "
+                             "(docs/images/aimotive_hood.jpg)")
     parser.add_argument("--aimotive-picture", type=Path, default=None,
                         help="ground truth | before | after of a test frame (docs/images/aimotive_pose_refine.jpg)")
     parser.add_argument("--out", type=Path, default=RESULTS)
