@@ -101,6 +101,10 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     assert added_true / added >= 0.95
     for pair in flow["per_pair"]:
         assert pair["dynamic_pixels"] == read_mask_png(masks / FLOW_MASKS / f"{pair['frame']}.png").sum()
+    # Written again without for_flow, the folder loses its flow masks (the flow stage would read them).
+    with torch_threads(1):
+        assert prepare_masks(scene, prepared, preset(SegInferConfig, "tiny"))["completion"] == "off"
+    assert not (masks / FLOW_MASKS).exists()
     # By default (for_flow off) the training run's prepared folder has no flow masks.
     assert not (tiny_trained_run / "scene" / "prepared" / "masks" / FLOW_MASKS).exists()
     assert json.loads((tiny_trained_run / "scene" / "prepared" / "masks" / "summary.json").read_text())[

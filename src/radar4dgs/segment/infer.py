@@ -5,7 +5,7 @@
 ``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
 ``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named. With
 ``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
-``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (on) and
+``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (off by default) and
 ``enabled`` off, the completed masks go to ``<prepared>/masks/flow/<frame>.png`` instead, which only
 the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``).
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib.resources
 import io
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -210,6 +211,8 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     out = Path(out_dir) if out_dir is not None else Path(prepared_dir) / "masks"
     out.mkdir(parents=True, exist_ok=True)
     objects = completion_objects(Path(prepared_dir), config)
+    if (objects is None or config.completion.enabled) and (out / FLOW_MASKS).is_dir():
+        shutil.rmtree(out / FLOW_MASKS)  # stale flow masks of an earlier run would mislead the flow stage
     frames, start = [], time.perf_counter()
     results = segment_scene(scene, Path(prepared_dir), config, model)
     for i, result in (progress(results) if progress is not None else results):

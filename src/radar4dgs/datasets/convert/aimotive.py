@@ -332,7 +332,8 @@ def convert_aimotive(src: str | Path, out: str | Path, scale: float = 0.5, overw
 
     Images are undistorted with OpenCV to the camera matrix of ``getOptimalNewCameraMatrix`` with
     alpha = 0 (every output pixel is valid: no black borders, a slightly narrower field of view),
-    then resized by ``scale`` with area interpolation (0.5 turns 1280x704 into 640x352); with
+    then resized by ``scale`` with area interpolation (0.5 turns 1280x704 into 640x352, or 640x282 with
+    the default crop); with
     ``crop_bottom`` the bottom fraction of the rows is cut off first (the ego's hood). Poses
     come from the radar (module doc); ``align_heading`` removes the constant heading offset
     between the radar's Doppler direction of travel and the body x-axis before applying the
@@ -386,7 +387,8 @@ class ConvertAimotiveCommand:
     src: tyro.conf.Positional[Path]
     # The scene folder to write.
     out: tyro.conf.Positional[Path]
-    # Image resize factor after undistortion (0.5: 1280x704 -> 640x352, light enough for CPU runs).
+    # Image resize factor after undistortion (0.5: 1280x704 -> 640x352, 640x282 with the hood cut off;
+    # light enough for CPU runs).
     scale: float = 0.5
     # Fraction of the image's rows cut off at the bottom after undistortion: the ego's own hood,
     # which moves with the camera and which no static scene can explain (0 keeps every row).
