@@ -106,34 +106,3 @@ def test_densification_carries_motion_parameters_with_their_gaussians():
     for name in ("velocity", "tau", "log_lifespan", "control", "colors"):
         torch.testing.assert_close(p[name].detach(), params[name][rows])
     assert [g["params"][0] for g in optimizer.param_groups] == [p[name] for name in gaussians.names]
-
-
-@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0))
-@settings(max_examples=25, deadline=None)
-def test_ours_velocity_residual_is_linear_around_the_life_peak(time, tau):
-    """TrainConfig.dynamic_velocity: ours' dynamic Gaussians are moved by the field, then by
-    ``v (t - tau)``; at the life peak the field alone places them."""
-    from radar4dgs.model.field import DeformationField, FieldConfig, randomize_
-    from radar4dgs.model.scene_model import SceneModel
-    from radar4dgs.model.sky import SkyEnvironment
-    from radar4dgs.train.model_init import with_lifespans
-
-    torch.manual_seed(0)
-    field = DeformationField(FieldConfig())
-    randomize_(field, 0.1, torch.Generator().manual_seed(0))
-    points = np.array([[1.0, 2.0, 3.0], [-4.0, 0.5, 1.0]])
-    static = GaussianSet.from_points(points, np.full((2, 3), 0.5))
-    velocity = torch.tensor([[4.0, -1.0, 0.0], [0.0, 2.0, 1.0]])
-    dynamic = with_lifespans(GaussianSet.from_points(points, np.full((2, 3), 0.5)), np.full(2, tau), 0.05,
-                             velocity=velocity)
-    model = SceneModel(static, SkyEnvironment(4, 8), field, dynamic)
-    with torch.no_grad():
-        moved = model.set_at("dynamic", time)["means"]
-        by_field = field(dynamic.activated()["means"], time)
-    torch.testing.assert_close(moved, by_field + velocity * (time - tau), rtol=1e-5, atol=1e-5)
-    # The baselines' sets (no field) keep PVG's vibration for the same parameter.
-    pvg = SceneModel(static, SkyEnvironment(4, 8), None, dynamic)
-    with torch.no_grad():
-        vibrating = pvg.set_at("dynamic", time)["means"]
-    torch.testing.assert_close(vibrating, pvg_means(dynamic.activated()["means"], dynamic.params["velocity"],
-                                                    dynamic.params["tau"], time, pvg.baseline.pvg_period))
