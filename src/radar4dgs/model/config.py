@@ -352,13 +352,6 @@ class TrainConfig:
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
     # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
     dynamic_lifespan_reference_px: float = 0.0
-    # Ours: each dynamic Gaussian (one copy of a car per training frame) also learns a velocity
-    # residual v_i added after the field, x_i(t) = D_t(x_i) + v_i (t - tau_i): a first-order
-    # correction of the field's motion over the copy's own life span, where the one smooth field
-    # cannot follow a fast car next to slow ones (fitted to exact ground-truth flow it misses the
-    # >30 px/frame pixels of hard seed 211 by 1.5 m). Zero-initialised, learning rate
-    # baselines.velocity_lr; needs dynamic_lifespan > 0.
-    dynamic_velocity: bool = False
     # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
     # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
     # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
@@ -448,9 +441,6 @@ class TrainConfig:
                              f"{o.stage2_start}, {o.stage3_start}")
         if self.dynamic_lifespan < 0:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
-        if self.dynamic_velocity and self.dynamic_lifespan == 0:
-            raise ValueError("dynamic_velocity needs dynamic_lifespan > 0 (the residual is linear around each "
-                             "copy's life peak)")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.dynamic_lifespan_reference_px < 0:

@@ -63,11 +63,7 @@ class SceneModel(nn.Module):
             g["means"] = self.field(g["means"], time)
         if gaussians.has("control"):
             g["means"] = bspline_means(g["means"], p["control"], time)
-        if gaussians.has("velocity") and name == "dynamic" and self.field is not None:
-            # Ours' per-copy velocity residual (TrainConfig.dynamic_velocity): linear around the
-            # copy's life peak, where alone it is drawn.
-            g["means"] = g["means"] + p["velocity"] * (time - p["tau"])[:, None]
-        elif gaussians.has("velocity"):
+        if gaussians.has("velocity"):
             g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
         if gaussians.has("log_lifespan"):
             g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)

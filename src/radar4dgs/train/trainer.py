@@ -250,8 +250,7 @@ class Trainer:
                 lifespan = speed_scaled_lifespans(speeds, lifespan, reference, float(np.min(np.diff(self.times))))
                 self.log(f"stage 2: dynamic life spans {lifespan.min():.3f}-{lifespan.max():.3f} "
                          f"(median speed {np.median(speeds):.1f} px per frame)")
-            residual = {"velocity": torch.zeros(len(dynamic), 3)} if self.config.dynamic_velocity else {}
-            dynamic = with_lifespans(dynamic, self.times[frames], lifespan, **residual)
+            dynamic = with_lifespans(dynamic, self.times[frames], lifespan)
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
