@@ -296,40 +296,35 @@ def run_aimotive(args: argparse.Namespace) -> dict:
         print(f"aimotive {name}: {out[name]}", flush=True)
     if args.aimotive_picture:  # ground truth | before | after refinement
         out["picture_frame"] = frame_picture(scene, [(root / f"{r}-run", r) for r in ("before", "after")],
-                                                 args.aimotive_picture)
-    uncropped = args.work / "aimotive" / "before-run"
+                                             args.aimotive_picture)
+    uncropped_scene, uncropped = args.work / "aimotive" / "scene", args.work / "aimotive" / "before-run"
     if crop and (uncropped / "renders" / "nvs").is_dir():
-        out["uncropped_before_on_kept_rows"] = kept_rows_psnr(uncropped, args.work / "aimotive" / "scene",
-                                                              read_scene_rows(scene))
+        out["uncropped_before_on_kept_rows"] = kept_rows_psnr(uncropped, uncropped_scene, scene)
         if args.aimotive_hood_picture:
             out["hood_picture_frame"] = frame_picture(
-                args.work / "aimotive" / "scene", [(uncropped, "with the hood"), (root / "before-run", "hood cut off")],
+                uncropped_scene, [(uncropped, "with the hood"), (root / "before-run", "hood cut off")],
                 args.aimotive_hood_picture)
     return out
 
 
-def read_scene_rows(scene: Path) -> int:
-    from radar4dgs.io.scene import read_scene
-
-    return read_scene(scene).camera.height
-
-
-def kept_rows_psnr(run: Path, scene_dir: Path, rows: int) -> dict:
-    """Novel-view PSNR of an uncropped run's saved test renders over their top ``rows`` rows (those
-    a hood-cropped conversion keeps), pooled over the test frames: the cropped run's number on the
-    same pixels. PSNR* needs no such cut: no moving object reaches the hood."""
+def kept_rows_psnr(run: Path, scene_dir: Path, cropped_scene_dir: Path) -> dict:
+    """Novel-view PSNR of an uncropped run's saved test renders over the top rows that the
+    hood-cropped conversion at ``cropped_scene_dir`` keeps, averaged over the test frames as
+    ``metrics.json`` averages them: the cropped run's number on the same pixels. PSNR* needs no
+    such cut: no moving object reaches the hood."""
+    import torch
     from PIL import Image
 
     from radar4dgs.io.scene import read_scene
+    from radar4dgs.metrics.image import psnr
 
-    scene = read_scene(scene_dir)
-    errors = []
+    scene, rows = read_scene(scene_dir), read_scene(cropped_scene_dir).camera.height
+    scores = []
     for i in scene.test_indices:
-        name = scene.frames[i].name
-        render = np.asarray(Image.open(run / "renders" / "nvs" / f"{name}.png").convert("RGB"), dtype=np.float64)
-        truth = scene.load_image(i).astype(np.float64)
-        errors.append(((render[:rows] - truth[:rows]) / 255.0) ** 2)
-    return {"rows": rows, "nvs_psnr": float(-10 * np.log10(np.mean(errors)))}
+        render = np.asarray(Image.open(run / "renders" / "nvs" / f"{scene.frames[i].name}.png").convert("RGB"))
+        truth = scene.load_image(i)
+        scores.append(psnr(torch.from_numpy(render[:rows] / 255.0), torch.from_numpy(truth[:rows] / 255.0)))
+    return {"rows": rows, "nvs_psnr": float(np.mean(scores))}
 
 
 def main(argv: list[str] | None = None) -> int:
