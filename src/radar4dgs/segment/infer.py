@@ -190,14 +190,6 @@ def completion_objects(prepared_dir: Path, config: SegInferConfig) -> list | Non
     return load_radar_objects(prepared_dir)
 
 
-def completion_summary(completed: bool, config: SegInferConfig) -> str:
-    """What the summary says of the completion: "radar objects" (the masks are completed), "flow
-    masks" (only masks/flow/ is) or "off"."""
-    if not completed:
-        return "off"
-    return "radar objects" if config.completion.enabled else f"{FLOW_MASKS} masks"
-
-
 def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig | None = None,
                   model: RadarCameraSegNet | None = None, out_dir: str | Path | None = None,
                   progress: Callable[[Iterable], Iterable] | None = None) -> dict:
@@ -211,7 +203,10 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     out = Path(out_dir) if out_dir is not None else Path(prepared_dir) / "masks"
     out.mkdir(parents=True, exist_ok=True)
     objects = completion_objects(Path(prepared_dir), config)
-    if (objects is None or config.completion.enabled) and (out / FLOW_MASKS).is_dir():
+    flow_only = objects is not None and not config.completion.enabled  # completed masks for masks/flow/ alone
+    if flow_only:
+        (out / FLOW_MASKS).mkdir(exist_ok=True)
+    elif (out / FLOW_MASKS).is_dir():
         shutil.rmtree(out / FLOW_MASKS)  # stale flow masks of an earlier run would mislead the flow stage
     frames, start = [], time.perf_counter()
     results = segment_scene(scene, Path(prepared_dir), config, model)
@@ -222,11 +217,10 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
             completed = complete_mask(mask, depth_for_baseline(scene, i, Path(prepared_dir)),
                                       frame_objects(scene, i, objects[i]), scene.camera.K, scene.camera.cam_to_ego,
                                       config.completion)
-            if config.completion.enabled:
-                mask = completed
-            else:
-                (out / FLOW_MASKS).mkdir(exist_ok=True)
+            if flow_only:
                 atomic_write_bytes(out / FLOW_MASKS / f"{name}.png", encode_png(completed))
+            else:
+                mask = completed
         atomic_write_bytes(out / f"{name}.png", encode_png(mask))
         if config.save_prob:  # completed pixels count as certain, so prob > threshold is the PNG
             atomic_save_npy(out / f"{name}_prob.npy", np.maximum(result.prob, mask).astype(np.float16))
@@ -234,6 +228,6 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     elapsed = time.perf_counter() - start
     summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
                "seconds_per_frame": round(elapsed / max(len(frames), 1), 4),
-               "completion": completion_summary(objects is not None, config)}
+               "completion": "off" if objects is None else f"{FLOW_MASKS} masks" if flow_only else "radar objects"}
     atomic_write_json(out / "summary.json", summary)
     return summary
