@@ -40,7 +40,8 @@ def test_preset_resources_and_the_overrides_they_imply():
     assert task_resources("paper", gpus=0.25) == Resources(4, 0.25, 12)
     with pytest.raises(BatchError, match="--cpus > 0"):
         task_resources("small", cpus=0)
-    assert scene_overrides({}, Resources(2), 30) == {"threads": 2, "optim": {"iterations": 30}}
+    assert scene_overrides({}, Resources(2), 30) == {"threads": 2, "device": "cpu", "optim": {"iterations": 30}}
+    assert scene_overrides({"device": "cuda:1"}, Resources(2), None)["device"] == "cuda:1"
     assert scene_overrides({"threads": 1}, Resources(1, 0.5), None) == {"threads": 1, "device": "cuda"}
 
 

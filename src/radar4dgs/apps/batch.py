@@ -57,13 +57,13 @@ def task_resources(preset_name: str, cpus: float | None = None, gpus: float | No
 def scene_overrides(settings: Mapping[str, Any] | None, resources: Resources, iterations: int | None
                     ) -> dict[str, Any]:
     """Every scene's TrainConfig overrides: ``settings``, torch threads = the task's CPUs (unless
-    set), the device cuda when the task declares a GPU (unless set), ``iterations`` when given."""
+    set), the device cuda when the task declares a GPU and cpu when it declares none (unless set:
+    TrainConfig's "auto" would take a GPU the task did not reserve), ``iterations`` when given."""
     from radar4dgs.train.variants import merge
 
     settings = dict(settings or {})
     overrides: dict[str, Any] = {"threads": max(1, int(resources.cpus))}
-    if resources.gpus > 0:
-        overrides["device"] = "cuda"
+    overrides["device"] = "cuda" if resources.gpus > 0 else "cpu"
     overrides = merge(overrides, settings)
     if iterations is not None:
         overrides = merge(overrides, {"optim": {"iterations": iterations}})

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from radar4dgs.depth.config import DepthConfig
+from radar4dgs.io.devices import resolve_device
 
 WEIGHTS_HELP = (
     "Depth-Anything-V2 weights are not available here. On a machine with internet run\n"
@@ -89,15 +90,6 @@ def to_inverse(values: np.ndarray, kind: str) -> np.ndarray:
         inverse[np.isposinf(values)] = 0.0  # sky: infinitely far, not "unknown"
         return inverse
     raise ValueError(f"unknown prior kind {kind!r}; choose 'inverse-depth' or 'depth'")
-
-
-def resolve_device(device: str | Any) -> Any:
-    """A torch.device from "auto" (CUDA when available) or any torch device spec."""
-    import torch
-
-    if isinstance(device, str) and device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
 
 
 class DepthAnythingV2:

@@ -376,8 +376,9 @@ class TrainConfig:
     checkpoint_every: int = 500
     # Log the loss terms every this many iterations.
     log_every: int = 25
-    # Torch device ("cpu", "cuda", ...) and intra-op threads (0 = torch's default).
-    device: str = "cpu"
+    # Torch device ("auto": CUDA when torch sees a GPU, else the CPU; or "cpu", "cuda", "cuda:1", ...)
+    # and intra-op threads (0 = torch's default).
+    device: str = "auto"
     threads: int = 0
     # Training frames whose targets (image, depth, sky and dynamic masks, ray directions: about 30
     # bytes a pixel, on the device) stay in memory, the most recently used; the others are read

@@ -28,6 +28,7 @@ import numpy as np
 
 from radar4dgs.config import load_config
 from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.devices import resolve_device
 from radar4dgs.io.scene import read_scene
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.scene_model import SceneModel, load_model
@@ -66,7 +67,7 @@ def load_run(run_dir: str | Path, device: str | None = None) -> Run:
     paths = json.loads((root / RUN_FILE).read_text())
     config = load_config(TrainConfig, root / CONFIG_FILE)
     scene = read_scene(paths["scene"])
-    model = load_model(root / MODEL_FILE, device=device or config.device)
+    model = load_model(root / MODEL_FILE, device=resolve_device(device or config.device))
     if (root / POSES_FILE).is_file():
         scene = refined_scene(scene, read_refined_poses(root / POSES_FILE))
     return Run(root, scene, Path(paths["prepared"]), config, model)

@@ -30,6 +30,7 @@ from torch import Tensor
 
 from radar4dgs.config import read_config_dict, save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.io.devices import resolve_device
 from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.appearance import FrameAppearance
@@ -140,7 +141,7 @@ class Trainer:
         # history.json at every log step, and TensorBoard in RUN/tb unless tensorboard is False.
         self.tensorboard = tensorboard
         self.train_log: TrainLog | None = None
-        self.device = torch.device(config.device)
+        self.device = resolve_device(config.device)
         self.dtype = torch.float32
         self._points: dict[str, np.ndarray] | None = None
 
