@@ -50,8 +50,10 @@ stamp "1. gsplat build: $(cat "$OUT/gsplat_build.txt")"
 tail -n 30 "$OUT/gsplat_build.log"
 
 stamp "3. CUDA tests"
-timeout "$(left)" python3 -m pytest -q -p no:cacheprovider tests/render/test_raster_gsplat.py \
-  tests/apps/test_export_formats.py 2>&1 | tail -n 30
+# One pytest per folder: each test folder has its own conftest.py, imported by that name.
+for tests in tests/render/test_raster_gsplat.py tests/apps/test_export_formats.py; do
+  timeout "$(left)" python3 -m pytest -q -p no:cacheprovider "$tests" 2>&1 | tail -n 15
+done
 
 stamp "4. scene 214 on the GPU with gsplat"
 timeout "$(left)" python3 benchmarks/traffic.py --seeds 214 --traffic rush --fps 5 --methods ours --jobs 1 \
