@@ -32,7 +32,8 @@ class EditedSceneModel(SceneModel):
     applies actor edits to the dynamic Gaussians; renders, masks and depth follow unchanged."""
 
     def __init__(self, model: SceneModel, removed, moved, retimed, frame_times: np.ndarray, duration: float):
-        super().__init__(model.static, model.sky, model.field, model.dynamic, model.offsets, model.baseline)
+        super().__init__(model.static, model.sky, model.field, model.dynamic, model.offsets, model.baseline,
+                         model.actor_motion)
         self.removed = removed  # (K,) long tensor of dynamic indices, or None
         self.moved = moved  # [(indices, heading (F,), (lateral, longitudinal))]
         self.retimed = retimed  # {actor id: (indices, kind, value)}

@@ -352,6 +352,14 @@ class TrainConfig:
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
     # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
     dynamic_lifespan_reference_px: float = 0.0
+    # Ours: at this fraction of the iterations (0 = never) the dynamic Gaussians are grouped into
+    # actors (radar4dgs.actors.discover, default ActorConfig) and each actor's Gaussians leave the
+    # deformation field for a rigid motion of its own: a yaw and a translation per training frame,
+    # linear in between (model.actor_motion), started from the field's motion and learned from the
+    # images at rigid_actors_lr (Adam; radians and metres). One smooth field cannot give a fast car
+    # and its slow neighbours opposite motions; a rigid body per actor can.
+    rigid_actors_at: float = 0.0
+    rigid_actors_lr: float = 0.002
     # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
     # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
     # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
@@ -444,6 +452,8 @@ class TrainConfig:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
+        if not 0.0 <= self.rigid_actors_at < 1.0:
+            raise ValueError(f"rigid_actors_at must lie in [0, 1) (0 = never), got {self.rigid_actors_at}")
         if self.dynamic_lifespan_reference_px < 0:
             raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:

@@ -32,8 +32,10 @@ from radar4dgs.motion.lift import backproject
 
 PARAM_NAMES: tuple[str, ...] = ("means", "quats", "log_scales", "opacity_logits", "colors")
 # Optional per-Gaussian motion parameters of the baselines (model.motion_models): ``velocity``
-# (N, 3), ``tau`` (N,) life peak, ``log_lifespan`` (N,), ``control`` (N, K, 3) B-spline offsets.
-MOTION_PARAM_NAMES: tuple[str, ...] = ("velocity", "tau", "log_lifespan", "control")
+# (N, 3), ``tau`` (N,) life peak, ``log_lifespan`` (N,), ``control`` (N, K, 3) B-spline offsets;
+# and ``actor`` (N,), never optimised: the rigid actor (model.actor_motion) a dynamic Gaussian moves
+# with, -1 for the field. A parameter so that densification clones, splits and prunes it with the rest.
+MOTION_PARAM_NAMES: tuple[str, ...] = ("velocity", "tau", "log_lifespan", "control", "actor")
 
 
 # --------------------------------------------------------------------------------------------
@@ -180,7 +182,7 @@ class GaussianSet(nn.Module):
             raise KeyError(f"unknown parameters {unknown}; known: {list(PARAM_NAMES + MOTION_PARAM_NAMES)}")
         n = params["means"].shape[0]
         shapes = {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
-                  "colors": (n, 3), "velocity": (n, 3), "tau": (n,), "log_lifespan": (n,)}
+                  "colors": (n, 3), "velocity": (n, 3), "tau": (n,), "log_lifespan": (n,), "actor": (n,)}
         for name in params:
             shape = shapes.get(name)
             actual = tuple(params[name].shape)

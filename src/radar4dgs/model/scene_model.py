@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from radar4dgs.config import from_dict, to_dict
+from radar4dgs.model.actor_motion import ActorMotion
 from radar4dgs.model.field import DeformationField, FieldConfig
 from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.motion_models import BaselineConfig, OffsetField, bspline_means, pvg_means, temporal_visibility
@@ -32,12 +33,14 @@ FAR_PLANE = 1000.0
 
 class SceneModel(nn.Module):
     """Static Gaussians, dynamic Gaussians (canonical; None before stage 2 and for the methods with
-    no dynamic set), the deformation field (only "ours"), the sky map, and the baselines' pieces:
-    ``offsets`` (deformable) and ``baseline`` (their config: PVG's period)."""
+    no dynamic set), the deformation field (only "ours"), the sky map, the baselines' pieces:
+    ``offsets`` (deformable) and ``baseline`` (their config: PVG's period), and ``actor_motion``
+    (rigid actors: the dynamic Gaussians whose ``actor`` parameter is >= 0 move with their actor's
+    rigid motion instead of the field)."""
 
     def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
                  dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
-                 baseline: BaselineConfig | None = None):
+                 baseline: BaselineConfig | None = None, actor_motion: ActorMotion | None = None):
         super().__init__()
         self.static = static
         self.sky = sky
@@ -45,6 +48,7 @@ class SceneModel(nn.Module):
         self.dynamic = dynamic
         self.offsets = offsets
         self.baseline = baseline or BaselineConfig()
+        self.actor_motion = actor_motion
 
     @property
     def num_gaussians(self) -> int:
@@ -60,7 +64,14 @@ class SceneModel(nn.Module):
         p = gaussians.params
         time = float(time)
         if name == "dynamic" and self.field is not None:
-            g["means"] = self.field(g["means"], time)
+            moved = self.field(g["means"], time)
+            if self.actor_motion is not None and gaussians.has("actor"):
+                actor = p["actor"].detach().long()
+                rigid = actor >= 0
+                means, quats = self.actor_motion(g["means"], g["quats"], actor.clamp(min=0), time)
+                moved = torch.where(rigid[:, None], means, moved)
+                g["quats"] = torch.where(rigid[:, None], quats, g["quats"])
+            g["means"] = moved
         if gaussians.has("control"):
             g["means"] = bspline_means(g["means"], p["control"], time)
         if gaussians.has("velocity"):
@@ -142,6 +153,7 @@ class SceneModel(nn.Module):
             "sky": self.sky.logits.detach().cpu(),
             "offsets": None if self.offsets is None else {k: v.cpu() for k, v in self.offsets.state_dict().items()},
             "baseline_config": to_dict(self.baseline),
+            "actor_motion": None if self.actor_motion is None else self.actor_motion.state(),
         }
 
     @classmethod
@@ -164,7 +176,11 @@ class SceneModel(nn.Module):
         if payload.get("offsets") is not None:
             offsets = OffsetField(baseline).to(device=device, dtype=dtype)
             offsets.load_state_dict({k: v.to(device=device, dtype=dtype) for k, v in payload["offsets"].items()})
-        return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline)
+        actor_motion = None
+        if payload.get("actor_motion") is not None:
+            actor_motion = ActorMotion.from_state(payload["actor_motion"], device, dtype)
+        return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline,
+                   actor_motion)
 
 
 def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:

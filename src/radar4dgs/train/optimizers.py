@@ -48,7 +48,8 @@ def make_optimizer(gaussians: GaussianSet, config: TrainConfig, extent: float, p
 
 
 def make_optimizers(model: SceneModel, config: TrainConfig, extent: float) -> dict[str, torch.optim.Optimizer]:
-    """One optimizer per part ``model`` has: static, sky, and where present field, offsets, dynamic."""
+    """One optimizer per part ``model`` has: static, sky, and where present field, offsets, dynamic,
+    actors (the rigid actors' motions)."""
     optimizers: dict[str, torch.optim.Optimizer] = {
         "static": make_optimizer(model.static, config, extent, "static."),
         "sky": adam(model.sky.parameters(), lr=config.optim.sky_lr),
@@ -59,6 +60,8 @@ def make_optimizers(model: SceneModel, config: TrainConfig, extent: float) -> di
         optimizers["offsets"] = adam(model.offsets.parameters(), lr=config.baselines.offset_lr)
     if model.dynamic is not None:
         optimizers["dynamic"] = make_optimizer(model.dynamic, config, extent, "dynamic.")
+    if model.actor_motion is not None:
+        optimizers["actors"] = adam(model.actor_motion.param_groups(config.rigid_actors_lr))
     return optimizers
 
 
