@@ -229,6 +229,41 @@ def test_resume_matches_an_unbroken_run(prepared, tmp_path):
     torch.testing.assert_close(unbroken.model.sky.logits, resumed.model.sky.logits)
 
 
+def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    import radar4dgs.train.trainer as trainer_module
+
+    def two_actors(model, scene, radar_objects=None, config=None):  # discovery itself: tests/actors
+        half = len(model.dynamic) // 2
+        return [SimpleNamespace(gaussians=np.arange(half)), SimpleNamespace(gaussians=np.arange(half, 2 * half))]
+
+    monkeypatch.setattr(trainer_module, "discover_actors", two_actors)
+    scene, prep = prepared
+    config = tiny_config(rigid_actors_at=0.75)  # the switch at step 18 of 24, in stage 3
+    logs: list[str] = []
+    unbroken = Trainer(scene, prep, tmp_path / "a", config, progress=False, log=logs.append).train()
+    assert any(line.startswith("rigid actors: 2 actors") for line in logs)
+    motion = unbroken.model.actor_motion
+    assert len(motion) == 2 and motion.key_times.numel() == len(scene_train_indices(scene))
+    assert motion.shift.abs().sum() > 0  # started from the field's motion, then learned
+    actor = unbroken.model.dynamic.params["actor"]
+    assert set(actor.long().unique().tolist()) <= {-1, 0, 1} and (actor >= 0).any()
+    saved = load_model(tmp_path / "a" / "model.pt")
+    torch.testing.assert_close(saved.actor_motion.shift, motion.shift.detach())
+    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=20)  # checkpoint after the switch
+    resumed = train_run(scene, prep, tmp_path / "b", config, resume=True, progress=False)
+    torch.testing.assert_close(resumed.model.actor_motion.shift, motion.shift, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(resumed.model.dynamic.params["means"], unbroken.model.dynamic.params["means"],
+                               rtol=1e-5, atol=1e-6)
+
+
+def scene_train_indices(scene) -> list[int]:
+    from radar4dgs.io.scene import read_scene
+
+    return read_scene(scene).train_indices
+
+
 def test_refuses_to_overwrite_a_run_or_resume_with_another_config(prepared, tmp_path):
     scene, prep = prepared
     config = tiny_config(optim={"iterations": 4})

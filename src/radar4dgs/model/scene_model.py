@@ -57,21 +57,16 @@ class SceneModel(nn.Module):
     def set_at(self, name: str, time: float) -> dict[str, Tensor]:
         """Activated Gaussians of set ``name`` ("static" or "dynamic") at normalised ``time``:
         ``means`` (N, 3) moved by whatever moves this set (the VGPT field for the dynamic set,
-        its B-spline or PVG parameters, the offset MLP), ``opacities`` (N,) times the temporal
-        visibility where the set has a life span, and ``quats``, ``scales``, ``colors``."""
+        its B-spline or PVG parameters, the offset MLP; a rigid actor's Gaussians by their actor's
+        motion), ``opacities`` (N,) times the temporal visibility where the set has a life span, and
+        ``quats`` (turned with a rigid actor), ``scales``, ``colors``."""
         gaussians = getattr(self, name)
         g = gaussians.activated()
         p = gaussians.params
         time = float(time)
+        canonical = g["means"]
         if name == "dynamic" and self.field is not None:
-            moved = self.field(g["means"], time)
-            if self.actor_motion is not None and gaussians.has("actor"):
-                actor = p["actor"].detach().long()
-                rigid = actor >= 0
-                means, quats = self.actor_motion(g["means"], g["quats"], actor.clamp(min=0), time)
-                moved = torch.where(rigid[:, None], means, moved)
-                g["quats"] = torch.where(rigid[:, None], quats, g["quats"])
-            g["means"] = moved
+            g["means"] = self.field(g["means"], time)
         if gaussians.has("control"):
             g["means"] = bspline_means(g["means"], p["control"], time)
         if gaussians.has("velocity"):
@@ -80,6 +75,13 @@ class SceneModel(nn.Module):
             g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)
         if self.offsets is not None:
             g["means"] = g["means"] + self.offsets(g["means"], time)
+        if self.actor_motion is not None and gaussians.has("actor"):
+            # Rigid actors' Gaussians: their means are positions at their actor's reference time.
+            actor = p["actor"].detach().long()
+            rigid = actor >= 0
+            means, quats = self.actor_motion(canonical, g["quats"], actor.clamp(min=0), time)
+            g["means"] = torch.where(rigid[:, None], means, g["means"])
+            g["quats"] = torch.where(rigid[:, None], quats, g["quats"])
         return g
 
     def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,

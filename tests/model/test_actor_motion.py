@@ -1,0 +1,61 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from radar4dgs.model.actor_motion import ActorMotion, interpolation_weights, quaternion_product, yaw_quaternions
+
+angles = st.floats(-math.pi, math.pi)
+
+
+@settings(max_examples=30, deadline=None)
+@given(yaw=angles, rotvec=st.lists(st.floats(-2, 2), min_size=3, max_size=3))
+def test_yaw_turns_a_rotation_as_scipy_composes_them(yaw, rotvec):
+    inner = Rotation.from_rotvec(rotvec)
+    quat = torch.tensor(np.roll(inner.as_quat(), 1)[None])  # scipy is xyzw, ours wxyz
+    product = quaternion_product(yaw_quaternions(torch.tensor([yaw], dtype=torch.float64)), quat)[0].numpy()
+    expected = (Rotation.from_euler("z", yaw) * inner).as_matrix()
+    np.testing.assert_allclose(Rotation.from_quat(np.roll(product, -1)).as_matrix(), expected, atol=1e-9)
+
+
+def test_interpolation_weights_are_linear_and_clamped():
+    keys = torch.tensor([0.0, 0.25, 1.0])
+    assert interpolation_weights(keys, 0.125) == (0, 1, pytest.approx(0.5))
+    assert interpolation_weights(keys, 0.625) == (1, 2, pytest.approx(0.5))
+    assert interpolation_weights(keys, -1.0)[2] == 0.0 and interpolation_weights(keys, 2.0) == (1, 2, 1.0)
+    assert interpolation_weights(torch.tensor([0.3]), 0.9) == (0, 0, 0.0)
+
+
+def test_a_body_turns_about_its_pivot_and_shifts_with_its_key_poses():
+    keys = torch.tensor([0.0, 1.0], dtype=torch.float64)
+    pivots = torch.tensor([[10.0, 5.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    yaw = torch.tensor([[0.0, math.pi / 2], [0.0, 0.0]], dtype=torch.float64)
+    shift = torch.zeros(2, 2, 3, dtype=torch.float64)
+    shift[0, 1] = torch.tensor([4.0, 0.0, 1.0])
+    shift[1, :, 1] = torch.tensor([0.0, 2.0])
+    motion = ActorMotion(keys, pivots, yaw, shift)
+    means = torch.tensor([[12.0, 5.0, 1.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64)
+    actor = torch.tensor([0, 1])
+    at_start, _ = motion(means, quats, actor, 0.0)
+    torch.testing.assert_close(at_start, means)
+    at_end, turned = motion(means, quats, actor, 1.0)
+    # (12, 5) is 2 m ahead of the pivot: a quarter turn puts it 2 m to its left, then 4 m on.
+    torch.testing.assert_close(at_end, torch.tensor([[14.0, 7.0, 2.0], [1.0, 3.0, 1.0]], dtype=torch.float64))
+    torch.testing.assert_close(turned[0], yaw_quaternions(torch.tensor([math.pi / 2], dtype=torch.float64))[0])
+    halfway, _ = motion(means, quats, actor, 0.5)
+    c = math.cos(math.pi / 4)
+    torch.testing.assert_close(halfway[0], torch.tensor([10 + 2 * c + 2, 5 + 2 * c, 1.5], dtype=torch.float64))
+
+
+def test_state_round_trip_and_shape_checks():
+    motion = ActorMotion(torch.linspace(0, 1, 4), torch.randn(3, 3), torch.randn(3, 4), torch.randn(3, 4, 3))
+    again = ActorMotion.from_state(motion.state())
+    for name in ("key_times", "pivots", "yaw", "shift"):
+        torch.testing.assert_close(getattr(again, name), getattr(motion, name))
+    with pytest.raises(ValueError, match="inconsistent shapes"):
+        ActorMotion(torch.linspace(0, 1, 4), torch.randn(3, 3), torch.randn(3, 5), torch.randn(3, 4, 3))

@@ -1,0 +1,77 @@
+import math
+
+import numpy as np
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radar4dgs.model.config import BaselineConfig
+from radar4dgs.model.gaussians import GaussianSet
+from radar4dgs.model.scene_model import SceneModel
+from radar4dgs.model.sky import SkyEnvironment
+from radar4dgs.train.optimizers import adam
+from radar4dgs.train.rigid_actors import fit_rigid_track, procrustes_yaw, rigid_actor_motion, rigid_members
+
+
+def turn(points: np.ndarray, yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.stack([c * points[..., 0] - s * points[..., 1], s * points[..., 0] + c * points[..., 1],
+                     points[..., 2]], axis=-1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(yaw=st.floats(-3.0, 3.0))
+def test_procrustes_yaw_is_the_rotation_between_two_point_sets(yaw):
+    points = np.random.default_rng(0).normal(size=(20, 3))
+    found = procrustes_yaw(points[:, :2], turn(points, yaw)[:, :2], np.ones(20))
+    assert abs(math.remainder(found - yaw, 2 * math.pi)) < 1e-9
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 1000), keys=st.integers(2, 6))
+def test_a_rigid_track_is_recovered_and_transparent_gaussians_do_not_count(seed, keys):
+    rng = np.random.default_rng(seed)
+    body = rng.uniform([-2, -1, 0], [2, 1, 1.5], (60, 3)) + [20, 3, 0]
+    yaws, shifts = rng.uniform(-0.5, 0.5, keys), rng.uniform(-5, 5, (keys, 3))
+    centre = body.mean(axis=0)
+    positions = np.stack([turn(body - centre, yaws[k]) + centre + shifts[k] for k in range(keys)], axis=1)
+    opacities = np.ones((60, keys))
+    opacities[:5] = 0.0  # outside their life span: the field puts them anywhere
+    positions[:5] = rng.uniform(-100, 100, (5, keys, 3))
+    reference, pivot, yaw, shift = fit_rigid_track(positions, opacities)
+    for k in range(keys):
+        moved = turn(positions[5:, reference] - pivot, yaw[k]) + pivot + shift[k]
+        np.testing.assert_allclose(moved, positions[5:, k], atol=1e-8)
+
+
+def pvg_model(velocity: np.ndarray, n: int = 40) -> tuple[SceneModel, np.ndarray]:
+    """A model whose dynamic set is two bodies of ``n`` Gaussians moving at constant velocities
+    (PVG with a period far longer than the sequence: linear to 1e-7), and their index groups."""
+    rng = np.random.default_rng(0)
+    means = np.concatenate([rng.normal(size=(n, 3)) + [10, 0, 1], rng.normal(size=(n, 3)) + [20, 5, 1]])
+    speeds = np.repeat(velocity, n, axis=0)
+    kw = {"dtype": torch.float64}
+    dynamic = GaussianSet({"means": torch.tensor(means, **kw), "quats": torch.tensor([[1.0, 0, 0, 0]] * 2 * n, **kw),
+                           "log_scales": torch.full((2 * n, 3), -2.0, **kw),
+                           "opacity_logits": torch.full((2 * n,), 4.0, **kw), "colors": torch.zeros(2 * n, 3, **kw),
+                           "velocity": torch.tensor(speeds, **kw), "tau": torch.zeros(2 * n, **kw)})
+    static = GaussianSet({k: v[:1].clone() for k, v in dynamic.params.items() if k not in ("velocity", "tau")})
+    model = SceneModel(static, SkyEnvironment(4, 8, dtype=torch.float64), None, dynamic,
+                       baseline=BaselineConfig(pvg_period=1e4))
+    return model, [np.arange(n), np.arange(n, 2 * n)]
+
+
+def test_switching_to_rigid_actors_keeps_every_position_between_and_beyond_the_keys():
+    model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]))
+    times = np.linspace(0.0, 1.0, 11)
+    before = [model.set_at("dynamic", t)["means"].detach().clone() for t in times]
+    optimizer = adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)
+    motion, actor, start = rigid_actor_motion(model, groups, times[::2])  # keys: every other frame
+    rigid_members(model, motion, actor, start, optimizer)
+    assert model.dynamic.has("actor") and (model.dynamic.params["actor"] >= 0).all()
+    assert optimizer.param_groups[0]["params"][0] is model.dynamic.params["means"]
+    np.testing.assert_allclose(motion.yaw.detach().numpy(), 0.0, atol=1e-9)
+    for t, expected in zip(times, before, strict=True):
+        torch.testing.assert_close(model.set_at("dynamic", t)["means"], expected, atol=1e-6, rtol=0)
+    payload = SceneModel.from_payload(model.payload(), dtype=torch.float64)
+    torch.testing.assert_close(payload.set_at("dynamic", 0.3)["means"], model.set_at("dynamic", 0.3)["means"])
