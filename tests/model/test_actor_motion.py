@@ -22,11 +22,12 @@ def test_yaw_turns_a_rotation_as_scipy_composes_them(yaw, rotvec):
     np.testing.assert_allclose(Rotation.from_quat(np.roll(product, -1)).as_matrix(), expected, atol=1e-9)
 
 
-def test_interpolation_weights_are_linear_and_clamped():
+def test_interpolation_weights_are_linear_and_extrapolate_beyond_the_keys():
     keys = torch.tensor([0.0, 0.25, 1.0])
     assert interpolation_weights(keys, 0.125) == (0, 1, pytest.approx(0.5))
     assert interpolation_weights(keys, 0.625) == (1, 2, pytest.approx(0.5))
-    assert interpolation_weights(keys, -1.0)[2] == 0.0 and interpolation_weights(keys, 2.0) == (1, 2, 1.0)
+    assert interpolation_weights(keys, -0.25) == (0, 1, pytest.approx(-1.0))
+    assert interpolation_weights(keys, 1.75) == (1, 2, pytest.approx(2.0))
     assert interpolation_weights(torch.tensor([0.3]), 0.9) == (0, 0, 0.0)
 
 

@@ -10,7 +10,8 @@ methods give each box a pose: a yaw about the world's z axis and a translation p
 
 with ``c_i`` the Gaussian's position at the actor's reference time, ``p_a`` the actor's pivot (its
 centroid then), and yaw and shift interpolated linearly between the key times (the training frames'
-times, so a held-out frame between two of them gets the interpolated pose). The Gaussians' rotations
+times, so a held-out frame between two of them gets the interpolated pose; beyond the first or last
+key they extrapolate). The Gaussians' rotations
 turn with the yaw. Gaussians of no actor keep the field.
 """
 
@@ -40,8 +41,9 @@ def quaternion_product(a: Tensor, b: Tensor) -> Tensor:
 
 
 def interpolation_weights(key_times: Tensor, time: float) -> tuple[int, int, float]:
-    """The two key indices around normalised ``time`` and the weight of the second (clamped to the
-    first and last key: the pose holds outside the keys). ``key_times`` (K,) increasing."""
+    """The two key indices around normalised ``time`` and the weight of the second; before the first
+    key and after the last the first or last two keys extrapolate linearly (a held-out first or last
+    frame of a moving car), so the weight leaves [0, 1] there. ``key_times`` (K,) increasing."""
     k = int(key_times.numel())
     if k == 1:
         return 0, 0, 0.0
@@ -49,8 +51,7 @@ def interpolation_weights(key_times: Tensor, time: float) -> tuple[int, int, flo
                                                            device=key_times.device)).clamp(1, k - 1))
     lower = upper - 1
     span = float(key_times[upper] - key_times[lower])
-    weight = min(max((float(time) - float(key_times[lower])) / max(span, 1e-12), 0.0), 1.0)
-    return lower, upper, weight
+    return lower, upper, (float(time) - float(key_times[lower])) / max(span, 1e-12)
 
 
 class ActorMotion(nn.Module):
