@@ -3,11 +3,9 @@
 
 At the switch the dynamic Gaussians are grouped into actors (:func:`radar4dgs.actors.discover.discover_actors`,
 as ``radar4dgs actors`` does after training). For each actor the field's positions of its Gaussians
-at every key time give the initial rigid motion: a weighted 2-D Procrustes fit (yaw about z) and the
-weighted centroid's displacement, weighted by the Gaussians' opacities at the reference time and at
-the key time (a Gaussian outside its life span is flung anywhere by the field and must not count).
-The reference time is the key where the actor's opacity mass is largest; its Gaussians' means become
-their positions then.
+at the key times give the initial rigid motion (:func:`fit_rigid_track`: weighted 2-D Procrustes
+steps from key to key), and its Gaussians' means become their positions at the actor's reference
+time.
 """
 
 from __future__ import annotations
@@ -30,29 +28,50 @@ def procrustes_yaw(reference: np.ndarray, moved: np.ndarray, weights: np.ndarray
     return float(np.arctan2(cross, dot))
 
 
-def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def rigid_step(before: np.ndarray, after: np.ndarray, weights: np.ndarray,
+               pivot: np.ndarray) -> tuple[float, np.ndarray]:
+    """The rigid step ``after ≈ Rz(yaw) (before - pivot) + pivot + shift`` of (n, 3) points,
+    weighted least squares: (yaw, shift (3,))."""
+    src, dst = np.average(before, axis=0, weights=weights), np.average(after, axis=0, weights=weights)
+    yaw = procrustes_yaw(before[:, :2] - src[:2], after[:, :2] - dst[:2], weights)
+    return yaw, dst - pivot - turn_about_z(src - pivot, yaw)
+
+
+def turn_about_z(offset: np.ndarray, yaw: float) -> np.ndarray:
+    """(..., 3) offsets turned by ``yaw`` radians about z."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * offset[..., 0] - s * offset[..., 1], s * offset[..., 0] + c * offset[..., 1],
+                     offset[..., 2]], axis=-1)
+
+
+def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                           np.ndarray]:
     """The rigid motion of one actor from its Gaussians' (n, K, 3) field ``positions`` and (n, K)
-    ``opacities`` at K key times: the reference key, the pivot (3,) (weighted centroid there), and per
-    key the yaw (K,) and shift (K, 3) such that ``Rz(yaw_k) (x_ref - pivot) + pivot + shift_k`` is the
-    weighted least-squares fit of the key's positions."""
-    reference = int(np.argmax(opacities.sum(axis=0)))
-    w_ref = opacities[:, reference] + 1e-9
-    pivot = np.average(positions[:, reference], axis=0, weights=w_ref)
+    ``opacities`` (life span included) at K key times: the pivot (3,) (the weighted centroid at the
+    key where the actor's opacity mass is largest, the reference), per key the yaw (K,) and shift
+    (K, 3) of ``T_k(c) = Rz(yaw_k) (c - pivot) + pivot + shift_k`` (identity at the reference), and
+    each Gaussian's (n, 3) position ``c`` at the reference time.
+
+    Each dynamic Gaussian is one frame's copy of its object and renders only near that frame: the
+    field's position of a copy far from its own time means little. So the motion is chained from
+    key to key, each step fitted on the Gaussians that render at both (opacity products as
+    weights), and each Gaussian's reference position is its position at its own key (where its
+    opacity peaks) brought back by that key's motion."""
     keys = positions.shape[1]
+    reference = int(np.argmax(opacities.sum(axis=0)))
+    pivot = np.average(positions[:, reference], axis=0, weights=opacities[:, reference] + 1e-9)
     yaw, shift = np.zeros(keys), np.zeros((keys, 3))
-    for k in range(keys):
-        weights = w_ref * opacities[:, k]
-        if weights.sum() < 1e-6 * w_ref.sum():
-            weights = w_ref  # the actor is not there at this key: its Gaussians' field positions alone
-        src_centre = np.average(positions[:, reference], axis=0, weights=weights)
-        dst_centre = np.average(positions[:, k], axis=0, weights=weights)
-        yaw[k] = procrustes_yaw(positions[:, reference, :2] - src_centre[:2], positions[:, k, :2] - dst_centre[:2],
-                                weights)
-        c, s = np.cos(yaw[k]), np.sin(yaw[k])
-        offset = src_centre - pivot
-        turned = np.array([c * offset[0] - s * offset[1], s * offset[0] + c * offset[1], offset[2]])
-        shift[k] = dst_centre - pivot - turned
-    return reference, pivot, yaw, shift
+    order = [(k, k - 1) for k in range(reference + 1, keys)] + [(k, k + 1) for k in range(reference - 1, -1, -1)]
+    for k, known in order:
+        weights = opacities[:, k] * opacities[:, known]
+        if weights.sum() < 1e-6:
+            weights = opacities[:, k] + opacities[:, known] + 1e-9  # nobody renders at both: the field alone
+        step_yaw, step_shift = rigid_step(positions[:, known], positions[:, k], weights, pivot)
+        yaw[k] = yaw[known] + step_yaw
+        shift[k] = turn_about_z(shift[known], step_yaw) + step_shift
+    own = np.argmax(opacities, axis=1)
+    canonical = turn_about_z(positions[np.arange(len(own)), own] - pivot - shift[own], -yaw[own]) + pivot
+    return pivot, yaw, shift, canonical
 
 
 @torch.no_grad()
@@ -74,10 +93,10 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     start = means.clone()
     pivots, yaws, shifts = [], [], []
     for a, members in enumerate(groups):
-        reference, pivot, yaw, shift = fit_rigid_track(positions[members], opacities[members])
+        pivot, yaw, shift, canonical = fit_rigid_track(positions[members], opacities[members])
         index = torch.as_tensor(members, dtype=torch.long, device=means.device)
         actor[index] = float(a)
-        start[index] = torch.as_tensor(positions[members, reference], dtype=means.dtype, device=means.device)
+        start[index] = torch.as_tensor(canonical, dtype=means.dtype, device=means.device)
         pivots.append(pivot)
         yaws.append(yaw)
         shifts.append(shift)
