@@ -60,3 +60,18 @@ def test_state_round_trip_and_shape_checks():
         torch.testing.assert_close(getattr(again, name), getattr(motion, name))
     with pytest.raises(ValueError, match="inconsistent shapes"):
         ActorMotion(torch.linspace(0, 1, 4), torch.randn(3, 3), torch.randn(3, 5), torch.randn(3, 4, 3))
+
+
+def test_acceleration_is_zero_at_constant_velocity_and_counts_a_jolt():
+    keys = torch.tensor([0.0, 0.1, 0.3, 0.4])  # uneven spacing: a held-out frame between 0.1 and 0.3
+    shift = torch.zeros(1, 4, 3)
+    shift[0, :, 0] = 5.0 * keys  # constant velocity
+    yaw = (0.2 * keys)[None]
+    motion = ActorMotion(keys, torch.zeros(1, 3), yaw, shift)
+    assert float(motion.acceleration().detach()) == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():
+        motion.shift[0, 3, 0] += 0.3  # the last key 0.3 m further: its interval's rate (per mean step) jumps
+    spacing_mean = float((keys[1:] - keys[:-1]).mean())
+    jump = 0.3 / (0.1 / spacing_mean)
+    assert float(motion.acceleration().detach()) == pytest.approx(jump ** 2 / 2, rel=1e-5)  # mean over 2 changes
+    assert ActorMotion(keys[:2], torch.zeros(1, 3), yaw[:, :2], shift[:, :2]).acceleration() == 0.0

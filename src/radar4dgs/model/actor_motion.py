@@ -90,6 +90,20 @@ class ActorMotion(nn.Module):
                               local[:, 2]], dim=-1)
         return turned + pivot_i + shift[actor], quaternion_product(yaw_quaternions(yaw_i), quats)
 
+    def acceleration(self) -> Tensor:
+        """Mean squared change of velocity between consecutive key intervals, shift (metres) and yaw
+        (radians), each velocity taken over the mean key spacing: the departure from constant
+        velocity per key, which a per-key pose fitted to its own image alone does not pay for; 0
+        with fewer than 3 keys."""
+        if self.key_times.numel() < 3:
+            return self.shift.sum() * 0.0
+        spacing = (self.key_times[1:] - self.key_times[:-1]).clamp_min(1e-9)
+        step = spacing / spacing.mean()
+        shift_rate = (self.shift[:, 1:] - self.shift[:, :-1]) / step[None, :, None]
+        yaw_rate = (self.yaw[:, 1:] - self.yaw[:, :-1]) / step[None]
+        return ((shift_rate[:, 1:] - shift_rate[:, :-1]) ** 2).sum(-1).mean() + \
+            ((yaw_rate[:, 1:] - yaw_rate[:, :-1]) ** 2).mean()
+
     def param_groups(self, lr: float) -> list[dict[str, Any]]:
         return [{"params": [self.yaw, self.shift], "lr": lr, "name": "actors"}]
 

@@ -360,6 +360,10 @@ class TrainConfig:
     # and its slow neighbours opposite motions; a rigid body per actor can.
     rigid_actors_at: float = 0.0
     rigid_actors_lr: float = 0.002
+    # Weight of the rigid actors' smoothness term (ActorMotion.acceleration: squared change of
+    # velocity from one key interval to the next, metres and radians): per-frame poses fitted to
+    # their own images alone drift off the path between them, where held-out frames are rendered.
+    rigid_actors_smoothness: float = 0.0
     # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
     # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
     # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
@@ -452,6 +456,8 @@ class TrainConfig:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
+        if self.rigid_actors_smoothness < 0:
+            raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
         if not 0.0 <= self.rigid_actors_at < 1.0:
             raise ValueError(f"rigid_actors_at must lie in [0, 1) (0 = never), got {self.rigid_actors_at}")
         if self.dynamic_lifespan_reference_px < 0:

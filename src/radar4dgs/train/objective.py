@@ -86,7 +86,8 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
             "velocity": c.velocity_weight, "pose_smooth": config.poses.smooth_weight,
-            "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight}
+            "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight,
+            "actor_smooth": config.rigid_actors_smoothness}
 
 
 def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:

@@ -432,6 +432,8 @@ class Trainer:
             losses.update(motion_losses(model.field, self.motion, config.losses.motion_batch, generator,
                                         self.device, self.dtype))
         losses.update(refinement_losses(state.poses, state.appearance))
+        if model.actor_motion is not None:
+            losses["actor_smooth"] = model.actor_motion.acceleration()
         check_finite(losses, step)
         loss = total_loss(losses, config)
         for optimizer in state.optimizers.values():
