@@ -258,6 +258,19 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
                                rtol=1e-5, atol=1e-6)
 
 
+def test_rigid_actors_without_actors_leave_the_field_and_discover_once(prepared, tmp_path, monkeypatch):
+    import radar4dgs.train.trainer as trainer_module
+
+    calls = []
+    monkeypatch.setattr(trainer_module, "discover_actors", lambda *args, **kwargs: calls.append(1) or [])
+    scene, prep = prepared
+    logs: list[str] = []
+    state = Trainer(scene, prep, tmp_path / "run", tiny_config(rigid_actors_at=0.75), progress=False,
+                    log=logs.append).train()
+    assert len(calls) == 1 and state.model.actor_motion is None and not state.model.dynamic.has("actor")
+    assert any("no actor found" in line for line in logs)
+
+
 def scene_train_indices(scene) -> list[int]:
     from radar4dgs.io.scene import read_scene
 

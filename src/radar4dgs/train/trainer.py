@@ -148,6 +148,8 @@ class Trainer:
         self.device = resolve_device(config.device)
         self.dtype = torch.float32
         self._points: dict[str, np.ndarray] | None = None
+        # Discovery ran once for the rigid actors (it found none, or the model holds them now).
+        self._rigid_actors_tried = False
 
     # ---- set-up
     def _load(self) -> None:
@@ -264,6 +266,7 @@ class Trainer:
     def _start_rigid_actors(self, state: RunState) -> None:
         """The dynamic Gaussians grouped into actors, each actor's moved by a rigid motion of its
         own from now on (``rigid_actors_at``; train.rigid_actors)."""
+        self._rigid_actors_tried = True
         try:
             radar_objects = load_radar_objects(self.prepared)
         except FileNotFoundError:
@@ -400,7 +403,7 @@ class Trainer:
         if config.method == "ours" and stage >= 2 and state.model.dynamic is None:
             self._start_dynamic(state)
         if (config.rigid_actors_at > 0 and state.model.dynamic is not None and state.model.actor_motion is None
-                and step >= round(config.rigid_actors_at * config.optim.iterations)):
+                and not self._rigid_actors_tried and step >= round(config.rigid_actors_at * config.optim.iterations)):
             self._start_rigid_actors(state)
         set_learning_rates(state.optimizers, config, self.extent, step)
         set_refine_learning_rates(state.optimizers, config, step)
