@@ -10,7 +10,9 @@ Camera formats (:mod:`radar4dgs.apps.export_cameras`): ``nerfstudio`` (``transfo
 ``--part static`` writes the static Gaussians only; ``--part all`` (default) adds the dynamic ones
 moved to normalised scene time ``--time T`` by the deformation field (``x_T = D_T(x_canonical)``).
 The field moves positions only: a dynamic Gaussian keeps its canonical rotation and scale at every
-time (it translates, it does not turn), so the exported rotations are the trained ones. A dynamic
+time (it translates, it does not turn), so the exported rotations are the trained ones, except for
+rigid actors' Gaussians (``rigid_actors_at``), which turn with their actor and are exported turned
+as at time T. A dynamic
 Gaussian with a life span (``dynamic_lifespan``) is exported with its opacity at time T. Colours are
 the view-independent ``sigmoid(colors)`` (degree-0 SH; the ``f_rest`` coefficients are zeros).
 
