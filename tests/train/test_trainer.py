@@ -232,13 +232,13 @@ def test_resume_matches_an_unbroken_run(prepared, tmp_path):
 def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, tmp_path, monkeypatch):
     from types import SimpleNamespace
 
-    import radar4dgs.train.trainer as trainer_module
+    import radar4dgs.train.rigid_actors as rigid_module
 
     def two_actors(model, scene, radar_objects=None, config=None):  # discovery itself: tests/actors
         half = len(model.dynamic) // 2
         return [SimpleNamespace(gaussians=np.arange(half)), SimpleNamespace(gaussians=np.arange(half, 2 * half))]
 
-    monkeypatch.setattr(trainer_module, "discover_actors", two_actors)
+    monkeypatch.setattr(rigid_module, "discover_actors", two_actors)
     scene, prep = prepared
     config = tiny_config(rigid_actors_at=0.75)  # the switch at step 18 of 24, in stage 3
     logs: list[str] = []
@@ -259,10 +259,10 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
 
 
 def test_rigid_actors_without_actors_leave_the_field_and_discover_once(prepared, tmp_path, monkeypatch):
-    import radar4dgs.train.trainer as trainer_module
+    import radar4dgs.train.rigid_actors as rigid_module
 
     calls = []
-    monkeypatch.setattr(trainer_module, "discover_actors", lambda *args, **kwargs: calls.append(1) or [])
+    monkeypatch.setattr(rigid_module, "discover_actors", lambda *args, **kwargs: calls.append(1) or [])
     scene, prep = prepared
     logs: list[str] = []
     state = Trainer(scene, prep, tmp_path / "run", tiny_config(rigid_actors_at=0.75), progress=False,

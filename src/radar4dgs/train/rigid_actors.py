@@ -10,12 +10,17 @@ time.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from torch import Tensor, nn
 
+from radar4dgs.actors.discover import discover_actors
 from radar4dgs.model.actor_motion import ActorMotion
 from radar4dgs.model.scene_model import SceneModel
+from radar4dgs.radar.objects import load_radar_objects
+from radar4dgs.train.optimizers import adam
 
 
 def procrustes_yaw(reference: np.ndarray, moved: np.ndarray, weights: np.ndarray) -> float:
@@ -128,3 +133,24 @@ def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: 
     dynamic.params["means"] = new
     dynamic.params["actor"] = nn.Parameter(actor.clone(), requires_grad=False)
     model.actor_motion = motion
+
+
+def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
+                       optimizers: dict[str, torch.optim.Optimizer], lr: float) -> str:
+    """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
+    them) and, when there are any, move each rigidly from now on: the motion installed in ``model``
+    at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
+    "actors". Returns the line to log."""
+    try:
+        radar_objects = load_radar_objects(prepared)
+    except FileNotFoundError:
+        radar_objects = None  # a prepared folder without radar objects: the motion graph alone
+    actors = discover_actors(model, scene, radar_objects)
+    if not actors:
+        return "rigid actors: no actor found; the field keeps every dynamic Gaussian"
+    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times)
+    rigid_members(model, motion, actor, start, optimizers["dynamic"])
+    optimizers["actors"] = adam(motion.param_groups(lr))
+    return (f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
+            "Gaussians move rigidly")
+

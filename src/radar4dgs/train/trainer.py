@@ -28,7 +28,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from radar4dgs.actors.discover import discover_actors
 from radar4dgs.config import read_config_dict, save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.io.devices import resolve_device
@@ -51,7 +50,6 @@ from radar4dgs.model.run import (
 from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
-from radar4dgs.radar.objects import load_radar_objects
 from radar4dgs.radar.sync import prepared_synced_scene
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
@@ -68,7 +66,6 @@ from radar4dgs.train.model_init import (
 )
 from radar4dgs.train.objective import image_losses, image_phase, motion_losses, refinement_losses, total_loss
 from radar4dgs.train.optimizers import (
-    adam,
     make_optimizer,
     make_optimizers,
     make_refine_optimizers,
@@ -76,7 +73,7 @@ from radar4dgs.train.optimizers import (
     set_learning_rates,
     set_refine_learning_rates,
 )
-from radar4dgs.train.rigid_actors import rigid_actor_motion, rigid_members
+from radar4dgs.train.rigid_actors import start_rigid_actors
 from radar4dgs.train.run_config import run_config_difference, same_run_config
 
 # The public entry point of training; LOSS_TERMS and the run-config checks are re-exported for
@@ -267,20 +264,9 @@ class Trainer:
         """The dynamic Gaussians grouped into actors, each actor's moved by a rigid motion of its
         own from now on (``rigid_actors_at``; train.rigid_actors)."""
         self._rigid_actors_tried = True
-        try:
-            radar_objects = load_radar_objects(self.prepared)
-        except FileNotFoundError:
-            radar_objects = None  # a prepared folder without radar objects: the motion graph alone
-        actors = discover_actors(state.model, self.scene, radar_objects)
-        if not actors:
-            self.log("rigid actors: no actor found; the field keeps every dynamic Gaussian")
-            return
         key_times = self.times[np.asarray(self.train_indices)]
-        motion, actor, start = rigid_actor_motion(state.model, [a.gaussians for a in actors], key_times)
-        rigid_members(state.model, motion.to(self.device), actor, start, state.optimizers["dynamic"])
-        state.optimizers["actors"] = adam(motion.param_groups(self.config.rigid_actors_lr))
-        self.log(f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
-                 "Gaussians move rigidly")
+        self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
+                                    self.config.rigid_actors_lr))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
