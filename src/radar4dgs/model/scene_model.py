@@ -65,8 +65,15 @@ class SceneModel(nn.Module):
         p = gaussians.params
         time = float(time)
         canonical = g["means"]
+        # Rigid actors' Gaussians: their means are positions at their actor's reference time.
+        rigid = p["actor"].detach() >= 0 if self.actor_motion is not None and gaussians.has("actor") else None
         if name == "dynamic" and self.field is not None:
-            g["means"] = self.field(g["means"], time)
+            if rigid is None:
+                g["means"] = self.field(g["means"], time)
+            else:  # the field only for the Gaussians it moves: most are rigid after the switch
+                moved = canonical.clone()
+                moved[~rigid] = self.field(canonical[~rigid], time)
+                g["means"] = moved
         if gaussians.has("control"):
             g["means"] = bspline_means(g["means"], p["control"], time)
         if gaussians.has("velocity"):
@@ -75,11 +82,8 @@ class SceneModel(nn.Module):
             g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)
         if self.offsets is not None:
             g["means"] = g["means"] + self.offsets(g["means"], time)
-        if self.actor_motion is not None and gaussians.has("actor"):
-            # Rigid actors' Gaussians: their means are positions at their actor's reference time.
-            actor = p["actor"].detach().long()
-            rigid = actor >= 0
-            means, quats = self.actor_motion(canonical, g["quats"], actor.clamp(min=0), time)
+        if rigid is not None:
+            means, quats = self.actor_motion(canonical, g["quats"], p["actor"].detach().long().clamp(min=0), time)
             g["means"] = torch.where(rigid[:, None], means, g["means"])
             g["quats"] = torch.where(rigid[:, None], quats, g["quats"])
         return g
