@@ -12,13 +12,17 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from radar4dgs.io.scene import read_scene
+from radar4dgs.metrics.image import psnr
 
 
 def dynamic_psnr(render: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
-    error = ((render.astype(np.float64) - truth) / 255.0)[mask] ** 2
-    return float(10 * np.log10(1.0 / max(error.mean(), 1e-12)))
+    """PSNR of (H, W, 3) uint8 ``render`` against ``truth`` on the (H, W) bool ``mask``, the project's
+    :func:`~radar4dgs.metrics.image.psnr` (as metrics.json's PSNR*)."""
+    as_unit = lambda image: torch.tensor(image, dtype=torch.float64) / 255.0  # noqa: E731
+    return psnr(as_unit(render), as_unit(truth), torch.as_tensor(mask))
 
 
 def main() -> None:
