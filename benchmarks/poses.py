@@ -23,10 +23,12 @@ before any tuning. Per seed (work/seed<N>/), cells (--cells, all by default):
   with the per-frame colour transform.
 
 Every run is evaluated (``metrics.json``: novel-view PSNR and PSNR* at the recorded test poses,
-and for refined runs after test-view alignment); the training frames' pose error against the
+and for refined runs after test-view alignment; for every run also with each test frame's exposure
+aligned, ``nvs_psnr_exposure_aligned``); the training frames' pose error against the
 exact poses before (the noisy scene) and after refinement (``RUN/poses.json``). --aimotive
 converts the aiMotive clip at 320x176 and trains it without and with refinement and compensation.
-Finished runs are reused (a rerun only collects them). Results go to --out after every seed.
+Finished runs are reused (a rerun only collects them, re-evaluating metrics older than the
+exposure alignment); a run of some --cells keeps the seed's other cells in --out. Results go to --out after every seed.
 """
 
 from __future__ import annotations
@@ -200,10 +202,14 @@ def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, ite
         train_run(scene, prepared, run, config, resume=(run / "checkpoints" / "last.pt").is_file(), progress=False,
                   tensorboard=False)
         seconds = time.perf_counter() - started
-    if not (run / "metrics.json").is_file():
+    metrics_path = run / "metrics.json"
+    # Metrics written before the exposure alignment existed are recomputed, the model reused.
+    if not metrics_path.is_file() or "nvs_exposure_aligned" not in json.loads(metrics_path.read_text()):
         evaluate_run(run, lpips=False, video=False, report=False, progress=False)
-    m = json.loads((run / "metrics.json").read_text())
+    m = json.loads(metrics_path.read_text())
     out = {"recon_psnr": m["recon"]["psnr"], "nvs_psnr": m["nvs"]["psnr"], "nvs_psnr_dyn": m["nvs"]["psnr_dyn"],
+           "nvs_psnr_exposure_aligned": m["nvs_exposure_aligned"]["psnr"],
+           "nvs_psnr_dyn_exposure_aligned": m["nvs_exposure_aligned"]["psnr_dyn"],
            "train_seconds": seconds if seconds is not None else (m.get("run") or {}).get("train_seconds")}
     for name, scores in (m.get("nvs_aligned") or {}).items():
         out[f"nvs_psnr_{name}"] = scores["psnr"]
@@ -363,7 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.out.is_file():
         results = {**json.loads(args.out.read_text()), **{k: v for k, v in results.items() if k != "seeds"}}
     for seed in args.seeds:
-        results["seeds"][str(seed)] = run_seed(seed, args)
+        # A run of some cells keeps the seed's other cells from earlier runs.
+        results["seeds"][str(seed)] = {**results["seeds"].get(str(seed), {}), **run_seed(seed, args)}
         atomic_write_json(args.out, results)
     if args.figure and args.seeds:
         correction_figure(args.work / f"seed{args.seeds[0]}", args.figure)

@@ -4,6 +4,7 @@ and with dynamics switched off, check that a killed run resumes to the same metr
     python benchmarks/reconstruct.py [--seeds 1 2 3] [--preset small] [--methods ours static]
                                      [--work /tmp/radar4dgs-recon-bench] [--resume-check SEED]
                                      [--aimotive] [--traffic calm|realistic|rush] [--fps 5] [--threads N]
+                                     [--set KEY=VALUE ...] [--out JSON]
 
 Every cell (seed x method) is a run folder under --work, in the demo's layout
 (seed<N>/{scene, prepared, run, static}); finished cells are reused, so an interrupted benchmark
@@ -20,6 +21,9 @@ trains and evaluates it, and reports its numbers.
 rate), the seeds of benchmarks/motion.py (issue 21: rush traffic at 5 Hz, report seeds 209-213, is
 the hard set); each seed's entry then holds its dynamic pixels' image motion (p50/p90/p99 px per
 frame at its width), and no demo is run (the demo makes calm scenes).
+
+--set KEY=VALUE sets (dotted) TrainConfig fields of every "ours" run, as `radar4dgs bench --set`
+(rigid_actors_at=0.3); use its own --work and --out, the runs are reused by folder.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import sys
 import time
 from pathlib import Path
 
+from radar4dgs.apps.bench_spec import parse_overrides
 from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
@@ -76,7 +81,7 @@ def run_dir(work: Path, seed: int, method: str) -> Path:
 
 
 def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, method: str,
-                   threads: int | None = None) -> dict:
+                   threads: int | None = None, overrides: dict | None = None) -> dict:
     from radar4dgs.evaluate.reconstruction import evaluate_run
     from radar4dgs.model.config import TrainConfig
     from radar4dgs.train.trainer import train_run
@@ -86,8 +91,8 @@ def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, met
         started = time.perf_counter()
         resume = (run / "checkpoints" / "last.pt").is_file()
         extra = {} if threads is None else {"threads": threads}
-        train_run(scene, prepared, run, preset(TrainConfig, preset_name, method=method, **extra), resume=resume,
-                  progress=True)
+        config = preset(TrainConfig, preset_name, method=method, **extra, **(overrides or {}))
+        train_run(scene, prepared, run, config, resume=resume, progress=True)
         seconds = time.perf_counter() - started
     if (run / "metrics.json").is_file():
         metrics = json.loads((run / "metrics.json").read_text())
@@ -161,13 +166,17 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch threads of each training (default: the preset's)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="TrainConfig fields of the 'ours' runs, dotted (rigid_actors_at=0.3)")
     args = parser.parse_args()
+    overrides = parse_overrides(args.set)
     if args.traffic != "calm" or args.fps is not None:
         args.demo_seed = None
 
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
     results.setdefault("cells", {})
-    results.update({"preset": args.preset, "threads": os.cpu_count(), "traffic": args.traffic, "fps": args.fps})
+    results.update({"preset": args.preset, "threads": os.cpu_count(), "traffic": args.traffic, "fps": args.fps,
+                    "set": args.set})
     for seed in args.seeds:
         demo = run_demo(seed, args.preset, args.work) if seed == args.demo_seed else {}
         if demo:
@@ -177,7 +186,8 @@ def main() -> None:
         scene, prepared, prepare_seconds = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps)
         motion = None if args.traffic == "calm" else dynamic_motion_statistics(read_scene(scene))
         for method in args.methods:
-            cell = train_and_eval(scene, prepared, run_dir(args.work, seed, method), args.preset, method, args.threads)
+            cell = train_and_eval(scene, prepared, run_dir(args.work, seed, method), args.preset, method, args.threads,
+                                  overrides if method == "ours" else None)
             cell["prepare_seconds"] = prepare_seconds
             if motion is not None:
                 cell["image_motion_px"] = motion

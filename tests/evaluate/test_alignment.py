@@ -1,5 +1,6 @@
 """Test-view alignment (issue 27): the interpolated test camera sits on the refined training
-trajectory at its time, read from RUN/poses.json, whatever its own recorded pose says."""
+trajectory at its time, read from RUN/poses.json, whatever its own recorded pose says; the
+exposure alignment takes out a global colour transform and nothing fitted on the pixel itself."""
 
 from __future__ import annotations
 
@@ -7,8 +8,11 @@ import json
 
 import numpy as np
 import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from radar4dgs.evaluate.alignment import interpolated_view, learned_corrections
+from radar4dgs.evaluate.alignment import exposure_aligned, interpolated_view, learned_corrections
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.pose_refine import camera_centres, pose_error
 from radar4dgs.model.run import POSES_FILE, Run
@@ -70,3 +74,42 @@ def test_few_training_frames_interpolate_linearly(tmp_path, count):
     view = View(np.eye(4), np.eye(3), 16, 9, 0.1)
     moved = interpolated_view(view, times, poses)
     np.testing.assert_allclose(camera_centres(moved.world_to_camera[None])[0], [0.8, 0.0, 1.5], atol=1e-12)
+
+
+def textured(height: int = 12, width: int = 16, seed: int = 0) -> torch.Tensor:
+    return torch.as_tensor(np.random.default_rng(seed).uniform(0.1, 0.9, (height, width, 3)))
+
+
+@settings(max_examples=25, deadline=None)
+@given(gain=st.floats(0.5, 1.2), bias=st.floats(-0.05, 0.05), width=st.integers(6, 17))
+def test_a_global_exposure_change_is_taken_out_exactly(gain, bias, width):
+    gt = textured(width=width)
+    mixing = torch.tensor([[gain, 0.02, 0.0], [0.0, gain, 0.01], [0.03, 0.0, gain]], dtype=gt.dtype)
+    render = gt @ mixing.T + bias  # a white-balance and exposure error, inside [0, 1]
+    assert torch.allclose(exposure_aligned(render, gt), gt, atol=1e-9)
+
+
+def test_each_half_is_corrected_by_the_other_halfs_transform():
+    gt = textured()
+    render = gt.clone()
+    render[:, :8] *= 0.5  # left half half as bright, right half exact
+    aligned = exposure_aligned(render, gt)
+    # The left half gets the identity fitted on the right; the right gets the left's doubling.
+    assert torch.allclose(aligned[:, :8], 0.5 * gt[:, :8], atol=1e-9)
+    assert torch.allclose(aligned[:, 8:], (2 * gt[:, 8:]).clamp(0, 1), atol=1e-9)
+
+
+def test_an_unrelated_render_is_not_fitted_to_the_truth():
+    gt, render = textured(seed=1), textured(seed=2)
+    aligned = exposure_aligned(render, gt)
+    # Cross-fitted on independent noise, the best transform is about the other half's mean colour.
+    error = float(((aligned - gt) ** 2).mean())
+    assert error > 0.8 * float(((gt - gt.mean(dim=(0, 1))) ** 2).mean())
+
+
+def test_a_flat_render_and_a_one_column_image():
+    gt = textured()
+    aligned = exposure_aligned(torch.full_like(gt, 0.5), gt)
+    assert torch.isfinite(aligned).all()
+    with pytest.raises(ValueError, match="at least 2 columns"):
+        exposure_aligned(gt[:, :1], gt[:, :1])

@@ -17,6 +17,12 @@ score at the recorded pose:
   frame's pose alone (an SE(3) correction, the scene frozen) against the test image's L1, as
   BARF / NeRF-- evaluate; ``poses.test_steps`` steps at ``poses.test_lr`` (rotation a tenth).
   It uses the test image, so it measures the scene, not the pose the run would predict.
+
+Exposure is aligned separately, for every run (:func:`exposure_aligned`): a run that learned
+per-frame colour transforms keeps its scene at the training frames' mean exposure, which no
+training image can pin to the test frames' (a gauge freedom, as the pose mean is for poses), so
+the field scores such runs with a colour transform fitted to each test image (NeRF-W fits its
+appearance code on half the test image and scores the other half).
 """
 
 from __future__ import annotations
@@ -37,6 +43,38 @@ from radar4dgs.model.sky import camera_ray_directions
 from radar4dgs.model.view import View
 
 ALIGNMENTS = ("interpolated", "optimised")
+EXPOSURE_ALIGNMENT = ("per test frame, an affine colour transform (3x3 matrix and offset) fitted by least squares "
+                      "on one half of the image (left or right columns) and applied to the other half, both ways, "
+                      "so no pixel is scored through a transform fitted on itself; clamped to [0, 1]")
+
+
+def _affine_fit(rgb: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """(4, 3) least-squares affine map taking ``rgb`` (N, 3) to ``gt`` (N, 3); rank-deficient
+    inputs (a flat half) get numpy's minimum-norm solution, not an error."""
+    design = np.concatenate([rgb, np.ones((len(rgb), 1))], axis=1)
+    return np.linalg.lstsq(design, gt, rcond=None)[0]
+
+
+def exposure_aligned(rgb: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """``rgb`` (H, W, 3) in [0, 1] with each column half mapped by the affine colour transform
+    fitted (least squares, toward ``gt`` (H, W, 3)) on the other half; (H, W, 3), clamped.
+
+    Cross-fitting keeps a pixel's own value out of its transform: a render that is wrong in a way
+    a colour transform cannot fix stays wrong, only a global exposure or white-balance offset is
+    taken out. Hand-written: 12 parameters of ordinary least squares, which no metric library
+    offers with this split."""
+    width = rgb.shape[1]
+    if width < 2:
+        raise ValueError(f"exposure_aligned needs at least 2 columns, got an image of shape {tuple(rgb.shape)}")
+    x = rgb.detach().double().cpu().numpy()
+    y = gt.detach().double().cpu().numpy()
+    half = width // 2
+    out = np.empty_like(x)
+    for fit, apply in ((slice(half, None), slice(None, half)), (slice(None, half), slice(half, None))):
+        coef = _affine_fit(x[:, fit].reshape(-1, 3), y[:, fit].reshape(-1, 3))
+        part = x[:, apply]
+        out[:, apply] = (np.concatenate([part, np.ones(part.shape[:2] + (1,))], axis=2) @ coef)
+    return torch.as_tensor(np.clip(out, 0.0, 1.0), dtype=rgb.dtype, device=rgb.device)
 
 
 def learned_corrections(run: Run) -> tuple[list[int], np.ndarray] | None:

@@ -44,7 +44,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from radar4dgs.evaluate.alignment import aligned_metrics, learned_corrections, score_aligned
+from radar4dgs.evaluate.alignment import (
+    EXPOSURE_ALIGNMENT,
+    aligned_metrics,
+    exposure_aligned,
+    learned_corrections,
+    score_aligned,
+)
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
 from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
@@ -260,6 +266,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
     per_frame: dict[str, list[dict]] = {"recon": [], "nvs": []}
     # Runs that refined their poses: the test views also aligned (evaluate.alignment).
     learned, aligned = learned_corrections(run), {}
+    # Every run: the test views also scored with their exposure aligned (evaluate.alignment).
+    exposure_scores: list[dict] = []
     frames_video, panels = [], []
     tb_images: dict[str, np.ndarray] | None = {} if (run.root / TB_DIR).is_dir() else None
     indices = range(len(scene))
@@ -286,6 +294,8 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
             if found is not None:
                 entry["trained_mask_hits"] = found[0]
             per_frame[split].append(entry)
+            if split == "nvs":
+                exposure_scores.append({"frame": name, **score_frame(exposure_aligned(rgb, gt), gt, mask, {})})
             if learned is not None and split == "nvs":
                 score_aligned(run, view, gt, times[learned[0]], learned[1],
                               lambda rgb, gt=gt, mask=mask: score_frame(rgb, gt, mask, scorers), aligned, name)
@@ -315,6 +325,7 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
         "lpips_available": all(s is not None for s in scorers.values()), "lpips_convention": lpips_convention(),
         "method": run.config.method, "num_gaussians": run.model.num_gaussians,
         "run": run_record(run),
+        "nvs_exposure_aligned": summarize_frames(exposure_scores), "exposure_alignment": EXPOSURE_ALIGNMENT,
         "per_frame": per_frame,
     }
     metrics.update(aligned_metrics(run, aligned) if learned is not None else {})
@@ -405,6 +416,10 @@ def format_metrics(metrics: dict[str, Any]) -> str:
         m = metrics[split]
         lines.append(f"{split:<7}{m['n_frames']:>7}{fmt(m['psnr']):>8}{fmt(m['ssim'], '.4f'):>8}"
                      f"{fmt(m['lpips_vgg'], '.4f'):>11}{fmt(m['lpips_alex'], '.4f'):>12}{fmt(m['psnr_dyn']):>8}")
+    exposure = metrics.get("nvs_exposure_aligned")
+    if exposure and exposure.get("n_frames"):
+        lines.append(f"nvs, exposure aligned (a colour transform fitted per test frame, cross-fitted halves): "
+                     f"PSNR {fmt(exposure['psnr'])}, PSNR* {fmt(exposure['psnr_dyn'])}")
     coverage = metrics.get("mask_coverage") or {}
     covered = f" ({_coverage_text(coverage)})" if coverage else ""
     lines.append(f"PSNR* mask: {metrics['mask_source']}{covered}; "
