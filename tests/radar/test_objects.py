@@ -13,6 +13,7 @@ from radar4dgs.radar.objects import (
     detect_objects,
     fit_planar_velocity,
     load_radar_objects,
+    optional_radar_objects,
     track_objects,
 )
 from radar4dgs.radar.tracking import track_detections
@@ -214,11 +215,18 @@ def test_objects_document_round_trips(tmp_path):
     assert obj.velocity.shape == (3,) and obj.velocity[2] == 0.0 and obj.velocity_covariance.shape == (2, 2)
     np.testing.assert_allclose(obj.frame_velocity[:2], [5.0, 1.0], atol=1e-8)
     assert obj.points.dtype == np.int64 and obj.num_returns == 12 and obj.observable
+    # The stages that work without radar objects get them only when they are current.
+    assert optional_radar_objects(tmp_path, 3)[0] is not None and optional_radar_objects(tmp_path, 3)[1] is None
+    assert optional_radar_objects(tmp_path, 4) == (None, f"{tmp_path / 'radar' / OBJECTS_FILE}: has 3 frames, the "
+                                                         "scene 4 (stale: rerun `radar4dgs prepare --only radar --force`)")
+    assert optional_radar_objects(None, 3) == (None, "no prepared folder")
     (tmp_path / "radar" / OBJECTS_FILE).write_text(json.dumps({"format": "other"}))
     with pytest.raises(ValueError, match="not a radar4dgs-radar-objects file"):
         load_radar_objects(tmp_path)
+    assert "not a radar4dgs-radar-objects file" in optional_radar_objects(tmp_path, 3)[1]
     with pytest.raises(FileNotFoundError, match="objects.json: missing file"):
         load_radar_objects(tmp_path / "nowhere")
+    assert "objects.json: missing file" in optional_radar_objects(tmp_path / "nowhere", 3)[1]
 
 
 def test_prepare_writes_objects_for_a_synthetic_scene(tmp_path):

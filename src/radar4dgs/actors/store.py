@@ -107,16 +107,14 @@ def is_current(run_root: Path) -> bool:
 def run_actors(run, config: ActorConfig | None = None, recompute: bool = False) -> list[Actor]:
     """The actors of the loaded ``run``: read from RUN/actors.json when current, else discovered (with the
     prepared folder's radar objects when present) and written there."""
-    from radar4dgs.radar.objects import load_radar_objects
+    from radar4dgs.radar.objects import optional_radar_objects
 
     root = Path(run.root)
     if not recompute and config is None and is_current(root):
         return read_actors(root / ACTORS_FILE)
     config = config or ActorConfig()
-    try:
-        radar_objects = load_radar_objects(run.prepared)
-    except (FileNotFoundError, ValueError):
-        radar_objects = None  # actors without radar: the motion graph alone
+    # Without (current) radar objects the motion graph alone groups the Gaussians.
+    radar_objects, _ = optional_radar_objects(run.prepared, len(run.scene))
     actors = discover_actors(run.model, run.scene, radar_objects, config)
     write_actors(run, actors, config)
     return actors

@@ -44,7 +44,7 @@ from radar4dgs.motion.object_hints import ObjectHint, frame_hints
 from radar4dgs.motion.objects_flow import PairGeometry, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
-from radar4dgs.radar.objects import load_radar_objects
+from radar4dgs.radar.objects import optional_radar_objects
 
 
 def frame_pairs(scene, skip_test_frames: bool = True) -> list[tuple[int, int]]:
@@ -276,15 +276,8 @@ def _radar_objects(scene, prepared_dir: str | Path | None, config: FlowConfig) -
     stage must still run on a prepared folder from before the radar objects existed."""
     if not config.radar_guided:
         return None, "off (radar_guided=False)"
-    if prepared_dir is None:
-        return None, "unavailable: no prepared folder"
-    try:
-        objects = load_radar_objects(prepared_dir)
-    except (FileNotFoundError, ValueError) as exc:
-        return None, f"unavailable: {exc}"
-    if len(objects) != len(scene):
-        return None, f"unavailable: objects.json has {len(objects)} frames, the scene {len(scene)} (stale)"
-    return objects, "used"
+    objects, why = optional_radar_objects(prepared_dir, len(scene))
+    return objects, "used" if objects is not None else f"unavailable: {why}"
 
 
 def load_flow_pairs(prepared_dir: str | Path) -> list[dict[str, np.ndarray]]:

@@ -352,3 +352,20 @@ def load_radar_objects(prepared_dir: str | Path) -> list[list[RadarObject]]:
         return [[_radar_object(o) for o in frame["objects"]] for frame in document["frames"]]
     except (KeyError, TypeError) as exc:
         raise ValueError(f"{path}: malformed object record ({exc!r})") from exc
+
+
+def optional_radar_objects(prepared_dir: str | Path | None, n_frames: int
+                           ) -> tuple[list[list[RadarObject]] | None, str | None]:
+    """The objects of every frame (:func:`load_radar_objects`) for the stages that work without
+    them, or None and why not: no prepared folder, a missing or malformed ``objects.json``, or one
+    made for another number of frames than the scene's ``n_frames`` (stale)."""
+    if prepared_dir is None:
+        return None, "no prepared folder"
+    try:
+        objects = load_radar_objects(prepared_dir)
+    except (FileNotFoundError, ValueError) as exc:
+        return None, str(exc)
+    if len(objects) != n_frames:
+        return None, (f"{Path(prepared_dir) / 'radar' / OBJECTS_FILE}: has {len(objects)} frames, the scene "
+                      f"{n_frames} (stale: rerun `radar4dgs prepare --only radar --force`)")
+    return objects, None

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from radar4dgs.motion.association import associate_nearest
-from radar4dgs.radar.objects import RadarObject, load_radar_objects
+from radar4dgs.radar.objects import RadarObject, optional_radar_objects
 from radar4dgs.train.config import FitConfig
 
 # One object of one frame for L_vel: its points (K, 3) world, velocity (2,) and covariance (2, 2).
@@ -104,11 +104,5 @@ def frame_objects(scene, prepared_dir, fit: FitConfig) -> tuple[list | None, str
         if not synthetic_objects(scene) or not scene.has("gt/radar_labels"):
             return None, "velocity term off: radar_source 'oracle' needs extra.synthetic.objects and gt/radar_labels"
         return [], None
-    try:
-        per_frame = load_radar_objects(prepared_dir)
-    except (FileNotFoundError, ValueError) as exc:
-        return None, f"velocity term off: {exc}"
-    if len(per_frame) != len(scene):
-        return None, (f"velocity term off: objects.json has {len(per_frame)} frames, the scene {len(scene)} "
-                      f"(stale: rerun `radar4dgs prepare --only radar --force`)")
-    return per_frame, None
+    per_frame, why = optional_radar_objects(prepared_dir, len(scene))
+    return per_frame, None if per_frame is not None else f"velocity term off: {why}"

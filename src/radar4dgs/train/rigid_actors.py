@@ -19,7 +19,7 @@ from torch import Tensor, nn
 from radar4dgs.actors.discover import discover_actors
 from radar4dgs.model.actor_motion import ActorMotion
 from radar4dgs.model.scene_model import SceneModel
-from radar4dgs.radar.objects import load_radar_objects
+from radar4dgs.radar.objects import optional_radar_objects
 from radar4dgs.train.optimizers import adam
 
 
@@ -141,10 +141,8 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
     them) and, when there are any, move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
     "actors". Returns the line to log."""
-    try:
-        radar_objects = load_radar_objects(prepared)
-    except FileNotFoundError:
-        radar_objects = None  # a prepared folder without radar objects: the motion graph alone
+    # Without (current) radar objects the motion graph alone groups the Gaussians.
+    radar_objects, _ = optional_radar_objects(prepared, len(scene))
     actors = discover_actors(model, scene, radar_objects)
     if not actors:
         return "rigid actors: no actor found; the field keeps every dynamic Gaussian"
