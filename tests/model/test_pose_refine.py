@@ -188,6 +188,11 @@ def test_refinement_is_on_for_odometry_poses_and_appearance_for_recorded_scenes(
     assert refinement_switches("auto", "auto", {"dataset": "synthetic", "poses_from_odometry": True}) == (True, False)
     assert refinement_switches("on", "off", {"dataset": "aimotive", "poses_from_radar": True}) == (True, False)
     assert refinement_switches("off", "on", {}) == (False, True)
+    # By default: odometry poses refined (issue 27), exposure left alone, exact poses untouched.
+    defaults = TrainConfig().poses
+    assert refinement_switches(defaults.refine, defaults.appearance,
+                               {"dataset": "aimotive", "poses_from_radar": True}) == (True, False)
+    assert refinement_switches(defaults.refine, defaults.appearance, {"dataset": "synthetic"}) == (False, False)
 
 
 def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, -1.0, 0.0)) -> np.ndarray:

@@ -197,10 +197,11 @@ class LossConfig:
 
 # "auto": on for scenes whose poses come from odometry (scene.json's source says
 # "poses_from_odometry" or "poses_from_radar": radar integration, `convert aimotive`), off for the
-# rest (exact simulator poses); "on" / "off" force it. Both default to "off": on the one recorded
-# clip measured (aiMotive night, tiny, the hood cut off) they cost novel-view PSNR (28.19 dB ->
-# 27.82 with both; poses alone 28.13, 28.27 with the test views optimised), so they are not
-# switched on for users until they help there (docs/pipeline/training.md).
+# rest (exact simulator poses); "on" / "off" force it. Pose refinement defaults to "auto": on
+# synthetic scenes with odometry-sized pose noise it recovers 3 dB of novel-view PSNR, and on the
+# one recorded clip measured (aiMotive night, tiny, the hood cut off) it is neutral (28.19 dB ->
+# 28.13 at the recorded test poses, 28.27 with the test views optimised). Exposure compensation
+# defaults to "off": on that clip it cost 0.3 dB (docs/pipeline/training.md).
 RefineMode = Literal["auto", "on", "off"]
 
 
@@ -212,7 +213,7 @@ class PoseRefineConfig:
 
     # Learn a camera pose correction per training frame: "auto" = when scene.json's source says the
     # poses come from odometry (poses_from_odometry / poses_from_radar, as `convert aimotive`).
-    refine: RefineMode = "off"
+    refine: RefineMode = "auto"
     # Adam rates of the corrections' translation (m) and rotation (rad) at the end of the warm-up,
     # decayed log-linearly to lr_final_ratio of themselves at the end of the run. Tuned on synthetic
     # tiny seed 1 with 0.10 m / 0.3 deg pose noise (benchmarks/poses.py, 600 iterations): 6e-3
