@@ -82,24 +82,3 @@ def test_switching_to_rigid_actors_keeps_every_position_between_and_beyond_the_k
         torch.testing.assert_close(model.set_at("dynamic", t)["means"], expected, atol=1e-6, rtol=0)
     payload = SceneModel.from_payload(model.payload(), dtype=torch.float64)
     torch.testing.assert_close(payload.set_at("dynamic", 0.3)["means"], model.set_at("dynamic", 0.3)["means"])
-
-
-def test_rigid_actors_get_the_minimum_life_span_and_the_rest_keep_theirs():
-    model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]))
-    n = len(groups[0])
-    spans = np.log(np.concatenate([np.full(n, 0.02), np.full(n // 2, 0.5), np.full(n - n // 2, 0.03)]))
-    model.dynamic.params["log_lifespan"] = torch.nn.Parameter(torch.tensor(spans))
-    optimizer = adam(model.dynamic.param_groups({"means": 0.01, "log_lifespan": 0.01}), eps=1e-15)
-    model.dynamic.params["log_lifespan"].grad = torch.ones(2 * n, dtype=torch.float64)
-    model.dynamic.params["means"].grad = torch.ones(2 * n, 3, dtype=torch.float64)
-    optimizer.step()  # Adam moments on every row
-    motion, actor, start = rigid_actor_motion(model, [groups[1]], np.linspace(0.0, 1.0, 5))  # only the second body
-    before = model.dynamic.params["log_lifespan"].detach().clone()
-    rigid_members(model, motion, actor, start, optimizer, min_lifespan=0.1)
-    after = model.dynamic.params["log_lifespan"].detach()
-    torch.testing.assert_close(after[:n], before[:n])  # not an actor: untouched
-    torch.testing.assert_close(after[n:], before[n:].clamp(min=math.log(0.1)))  # at least 0.1, longer ones kept
-    assert (after[n:n + n // 2] > math.log(0.4)).all()
-    lifespan_group = next(g for g in optimizer.param_groups if g["params"][0] is model.dynamic.params["log_lifespan"])
-    moments = optimizer.state[lifespan_group["params"][0]]["exp_avg"]
-    assert (moments[n:] == 0).all() and (moments[:n] != 0).all()

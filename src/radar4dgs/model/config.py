@@ -365,12 +365,6 @@ class TrainConfig:
     # velocity from one key interval to the next, metres and radians): per-frame poses fitted to
     # their own images alone drift off the path between them, where held-out frames are rendered.
     rigid_actors_smoothness: float = 0.0
-    # At the switch, a rigid actor's Gaussians get at least this life span (normalised time, as
-    # dynamic_lifespan; 0 = keep theirs). Each started as one frame's copy of its object, visible
-    # about two frames around it; moved by their actor they are right at every time, so a wider
-    # span lets every frame that sees the actor train them, and a held-out frame between two
-    # training frames sees a whole body instead of two fading copies.
-    rigid_actors_lifespan: float = 0.0
     # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
     # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
     # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
@@ -463,8 +457,6 @@ class TrainConfig:
             raise ValueError(f"dynamic_lifespan must be >= 0, got {self.dynamic_lifespan}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        if self.rigid_actors_lifespan < 0:
-            raise ValueError(f"rigid_actors_lifespan must be >= 0, got {self.rigid_actors_lifespan}")
         if self.rigid_actors_smoothness < 0:
             raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
         if not 0.0 <= self.rigid_actors_at < 1.0:

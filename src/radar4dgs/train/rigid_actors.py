@@ -111,53 +111,43 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     return motion, actor, start
 
 
-def _replace_rows(params: dict, name: str, values: Tensor, rows: Tensor, optimizer: torch.optim.Optimizer) -> None:
-    """``params[name]`` replaced by a parameter holding ``values``, in ``optimizer`` too, its Adam
-    moments zeroed on ``rows`` (the old ones were steps from other values)."""
-    old = params[name]
-    new = nn.Parameter(values.clone())
+def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: Tensor,
+                  optimizer: torch.optim.Optimizer) -> None:
+    """Install ``motion`` in ``model``: the dynamic set gets the (N,) ``actor`` parameter and the
+    actors' Gaussians their reference-time ``start`` means (their Adam moments of the means zeroed:
+    the old ones were steps of another parametrisation)."""
+    dynamic = model.dynamic
+    rigid = actor >= 0
+    old = dynamic.params["means"]
+    new = nn.Parameter(start.clone())
     for group in optimizer.param_groups:
         if group["params"][0] is old:
             state = optimizer.state.pop(old, {})
             for key in ("exp_avg", "exp_avg_sq"):
                 if key in state:
                     state[key] = state[key].clone()
-                    state[key][rows] = 0.0
+                    state[key][rigid] = 0.0
             group["params"] = [new]
             if state:
                 optimizer.state[new] = state
-    params[name] = new
-
-
-def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: Tensor,
-                  optimizer: torch.optim.Optimizer, min_lifespan: float = 0.0) -> None:
-    """Install ``motion`` in ``model``: the dynamic set gets the (N,) ``actor`` parameter and the
-    actors' Gaussians their reference-time ``start`` means (a new parametrisation), and life spans
-    of at least ``min_lifespan`` (normalised time; 0 keeps them) when the set has them."""
-    dynamic = model.dynamic
-    rigid = actor >= 0
-    _replace_rows(dynamic.params, "means", start, rigid, optimizer)
-    if min_lifespan > 0 and dynamic.has("log_lifespan"):
-        log_span = dynamic.params["log_lifespan"].detach().clone()
-        log_span[rigid] = log_span[rigid].clamp(min=float(np.log(min_lifespan)))
-        _replace_rows(dynamic.params, "log_lifespan", log_span, rigid, optimizer)
+    dynamic.params["means"] = new
     dynamic.params["actor"] = nn.Parameter(actor.clone(), requires_grad=False)
     model.actor_motion = motion
 
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
-                       optimizers: dict[str, torch.optim.Optimizer], lr: float, min_lifespan: float = 0.0) -> str:
+                       optimizers: dict[str, torch.optim.Optimizer], lr: float) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
     them) and, when there are any, move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
-    "actors"; the actors' Gaussians live at least ``min_lifespan``. Returns the line to log."""
+    "actors". Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, _ = optional_radar_objects(prepared, len(scene))
     actors = discover_actors(model, scene, radar_objects)
     if not actors:
         return "rigid actors: no actor found; the field keeps every dynamic Gaussian"
     motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times)
-    rigid_members(model, motion, actor, start, optimizers["dynamic"], min_lifespan)
+    rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     return (f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
             "Gaussians move rigidly")
