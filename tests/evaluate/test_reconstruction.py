@@ -69,6 +69,8 @@ def test_metrics_match_a_recomputation_from_the_saved_renders(trained):
     assert (run_dir / "video.mp4").stat().st_size > 1000
     html = (run_dir / "report.html").read_text()
     assert "data:image/png;base64," in html
+    assert "novel views, exposure aligned" in html
+    assert f"<td>{metrics['nvs_exposure_aligned']['psnr']:.2f}</td>" in html
     table = format_metrics(metrics)
     assert "PSNR*" in table and f"{metrics['nvs']['psnr']:.2f}" in table
     assert f"exposure aligned (a colour transform fitted per test frame, cross-fitted halves): PSNR " \

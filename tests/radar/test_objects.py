@@ -217,8 +217,8 @@ def test_objects_document_round_trips(tmp_path):
     assert obj.points.dtype == np.int64 and obj.num_returns == 12 and obj.observable
     # The stages that work without radar objects get them only when they are current.
     assert optional_radar_objects(tmp_path, 3)[0] is not None and optional_radar_objects(tmp_path, 3)[1] is None
-    assert optional_radar_objects(tmp_path, 4) == (None, f"{tmp_path / 'radar' / OBJECTS_FILE}: has 3 frames, the "
-                                                         "scene 4 (stale: rerun `radar4dgs prepare --only radar --force`)")
+    stale = f"{tmp_path / 'radar' / OBJECTS_FILE}: has 3 frames, the scene 4 (stale: rerun `radar4dgs prepare"
+    assert optional_radar_objects(tmp_path, 4) == (None, stale + " --only radar --force`)")
     assert optional_radar_objects(None, 3) == (None, "no prepared folder")
     (tmp_path / "radar" / OBJECTS_FILE).write_text(json.dumps({"format": "other"}))
     with pytest.raises(ValueError, match="not a radar4dgs-radar-objects file"):

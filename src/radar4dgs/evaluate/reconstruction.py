@@ -367,7 +367,8 @@ def write_run_report(run: Run, metrics: dict[str, Any], per_frame: dict[str, lis
     if has_video:
         links["video"] = VIDEO_FILE
     write_report(run.root / REPORT_FILE, title=f"radar4dgs run {run.root.resolve()}",
-                 metrics={k: metrics[k] for k in ("recon", "nvs", "mask_source", "lpips_available")},
+                 metrics={k: metrics[k] for k in ("recon", "nvs", "nvs_exposure_aligned", "mask_source",
+                                                  "lpips_available")},
                  per_frame=per_frame, history=loss_curves(history), panels=panels,
                  run_info=run_info, caveats=metrics["psnr_dyn_caveats"], links=links,
                  video=VIDEO_FILE if has_video else None,

@@ -34,7 +34,9 @@ METRIC_COLUMNS = (
     ("psnr_dyn", "PSNR* (dynamic pixels, dB)", "{:.2f}"),
     ("n_frames", "frames", "{:d}"),
 )
-SPLIT_LABELS = {"recon": "reconstruction (train views)", "nvs": "novel views (test views)"}
+SPLIT_LABELS = {"recon": "reconstruction (train views)", "nvs": "novel views (test views)",
+                "nvs_exposure_aligned": "novel views, exposure aligned (a colour transform per test view, "
+                                        "fitted on the other half of its columns)"}
 
 _CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 24px; color: #222;
