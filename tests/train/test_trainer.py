@@ -234,7 +234,10 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
 
     import radar4dgs.train.rigid_actors as rigid_module
 
+    given = []
+
     def two_actors(model, scene, radar_objects=None, config=None):  # discovery itself: tests/actors
+        given.append(radar_objects)
         half = len(model.dynamic) // 2
         return [SimpleNamespace(gaussians=np.arange(half)), SimpleNamespace(gaussians=np.arange(half, 2 * half))]
 
@@ -243,7 +246,8 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
     config = tiny_config(rigid_actors_at=0.75)  # the switch at step 18 of 24, in stage 3
     logs: list[str] = []
     unbroken = Trainer(scene, prep, tmp_path / "a", config, progress=False, log=logs.append).train()
-    assert any(line.startswith("rigid actors: 2 actors") for line in logs)
+    assert any(line.startswith("rigid actors: 2 actors") and "without radar" not in line for line in logs)
+    assert given[0] is not None and len(given[0]) == len(read_scene_folder(scene))  # the prepared radar objects
     motion = unbroken.model.actor_motion
     assert len(motion) == 2 and motion.key_times.numel() == len(scene_train_indices(scene))
     assert motion.shift.abs().sum() > 0  # started from the field's motion, then learned
@@ -269,12 +273,25 @@ def test_rigid_actors_without_actors_leave_the_field_and_discover_once(prepared,
                     log=logs.append).train()
     assert len(calls) == 1 and state.model.actor_motion is None and not state.model.dynamic.has("actor")
     assert any("no actor found" in line for line in logs)
+    (prep / "radar" / "objects.json").rename(prep / "radar" / "objects.json.away")  # discovery without radar
+    try:
+        logs.clear()
+        Trainer(scene, prep, tmp_path / "run2", tiny_config(rigid_actors_at=0.75), progress=False,
+                log=logs.append).train()
+    finally:
+        (prep / "radar" / "objects.json.away").rename(prep / "radar" / "objects.json")
+    assert any("no actor found" in line and "without radar objects" in line and "objects.json: missing file" in line
+               for line in logs)
+
+
+def read_scene_folder(scene):
+    from radar4dgs.io.scene import read_scene
+
+    return read_scene(scene)
 
 
 def scene_train_indices(scene) -> list[int]:
-    from radar4dgs.io.scene import read_scene
-
-    return read_scene(scene).train_indices
+    return read_scene_folder(scene).train_indices
 
 
 def test_refuses_to_overwrite_a_run_or_resume_with_another_config(prepared, tmp_path):

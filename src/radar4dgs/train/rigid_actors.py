@@ -142,13 +142,14 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
     "actors". Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
-    radar_objects, _ = optional_radar_objects(prepared, len(scene))
+    radar_objects, why = optional_radar_objects(prepared, len(scene))
+    without = "" if radar_objects is not None else f" (without radar objects: {why})"
     actors = discover_actors(model, scene, radar_objects)
     if not actors:
-        return "rigid actors: no actor found; the field keeps every dynamic Gaussian"
+        return f"rigid actors: no actor found; the field keeps every dynamic Gaussian{without}"
     motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     return (f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
-            "Gaussians move rigidly")
+            f"Gaussians move rigidly{without}")
 
