@@ -203,10 +203,10 @@ def train_and_eval(scene: Path, prepared: Path, run: Path, preset_name: str, ite
                   tensorboard=False)
         seconds = time.perf_counter() - started
     metrics_path = run / "metrics.json"
+    m = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
     # Metrics written before the exposure alignment existed are recomputed, the model reused.
-    if not metrics_path.is_file() or "nvs_exposure_aligned" not in json.loads(metrics_path.read_text()):
-        evaluate_run(run, lpips=False, video=False, report=False, progress=False)
-    m = json.loads(metrics_path.read_text())
+    if "nvs_exposure_aligned" not in m:
+        m = evaluate_run(run, lpips=False, video=False, report=False, progress=False)
     out = {"recon_psnr": m["recon"]["psnr"], "nvs_psnr": m["nvs"]["psnr"], "nvs_psnr_dyn": m["nvs"]["psnr_dyn"],
            "nvs_psnr_exposure_aligned": m["nvs_exposure_aligned"]["psnr"],
            "nvs_psnr_dyn_exposure_aligned": m["nvs_exposure_aligned"]["psnr_dyn"],

@@ -21,8 +21,8 @@ from radar4dgs.metrics.image import psnr
 def dynamic_psnr(render: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
     """PSNR of (H, W, 3) uint8 ``render`` against ``truth`` on the (H, W) bool ``mask``, the project's
     :func:`~radar4dgs.metrics.image.psnr` (as metrics.json's PSNR*)."""
-    as_unit = lambda image: torch.tensor(image, dtype=torch.float64) / 255.0  # noqa: E731
-    return psnr(as_unit(render), as_unit(truth), torch.as_tensor(mask))
+    render_unit, truth_unit = (torch.tensor(image, dtype=torch.float64) / 255.0 for image in (render, truth))
+    return psnr(render_unit, truth_unit, torch.as_tensor(mask))
 
 
 def main() -> None:

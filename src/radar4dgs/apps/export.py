@@ -12,8 +12,8 @@ moved to normalised scene time ``--time T`` by the deformation field (``x_T = D_
 The field moves positions only: a dynamic Gaussian keeps its canonical rotation and scale at every
 time (it translates, it does not turn), so the exported rotations are the trained ones, except for
 rigid actors' Gaussians (``rigid_actors_at``), which turn with their actor and are exported turned
-as at time T. A dynamic
-Gaussian with a life span (``dynamic_lifespan``) is exported with its opacity at time T. Colours are
+as at time T. A dynamic Gaussian with a life span (``dynamic_lifespan``) is exported with its
+opacity at time T. Colours are
 the view-independent ``sigmoid(colors)`` (degree-0 SH; the ``f_rest`` coefficients are zeros).
 
 Default output: ``RUN/export/scene_<part>_t<T>.ply`` (``T`` as ``%g``: ``t0``, ``t0.5``, ``t1``;

@@ -48,11 +48,15 @@ EXPOSURE_ALIGNMENT = ("per test frame, an affine colour transform (3x3 matrix an
                       "so no pixel is scored through a transform fitted on itself; clamped to [0, 1]")
 
 
+def _homogeneous(rgb: np.ndarray) -> np.ndarray:
+    """(..., 4) ``rgb`` (..., 3) with a column of ones, for an affine map as one (4, 3) matrix."""
+    return np.concatenate([rgb, np.ones(rgb.shape[:-1] + (1,))], axis=-1)
+
+
 def _affine_fit(rgb: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """(4, 3) least-squares affine map taking ``rgb`` (N, 3) to ``gt`` (N, 3); rank-deficient
     inputs (a flat half) get numpy's minimum-norm solution, not an error."""
-    design = np.concatenate([rgb, np.ones((len(rgb), 1))], axis=1)
-    return np.linalg.lstsq(design, gt, rcond=None)[0]
+    return np.linalg.lstsq(_homogeneous(rgb), gt, rcond=None)[0]
 
 
 def exposure_aligned(rgb: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
@@ -72,8 +76,7 @@ def exposure_aligned(rgb: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
     out = np.empty_like(x)
     for fit, apply in ((slice(half, None), slice(None, half)), (slice(None, half), slice(half, None))):
         coef = _affine_fit(x[:, fit].reshape(-1, 3), y[:, fit].reshape(-1, 3))
-        part = x[:, apply]
-        out[:, apply] = (np.concatenate([part, np.ones(part.shape[:2] + (1,))], axis=2) @ coef)
+        out[:, apply] = _homogeneous(x[:, apply]) @ coef
     return torch.as_tensor(np.clip(out, 0.0, 1.0), dtype=rgb.dtype, device=rgb.device)
 
 

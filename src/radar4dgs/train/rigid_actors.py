@@ -152,4 +152,3 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
     optimizers["actors"] = adam(motion.param_groups(lr))
     return (f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
             f"Gaussians move rigidly{without}")
-
