@@ -31,6 +31,19 @@ def test_preset_values_and_overrides():
     assert tiny.width == 160 and tiny.noise.range_std == 0.0 and tiny.noise.azimuth_std_deg == 0.3
     assert preset(StageConfig, "small") == StageConfig()  # a preset absent from PRESETS is the defaults
     assert preset(StageConfig, "paper", width=7).width == 7
+    # A nested override changes its own fields only: the preset's others in that group stay.
+    merged = preset(StageConfig, "tiny", noise={"azimuth_std_deg": 1.5})
+    assert merged.noise == Noise(0.0, 1.5) and merged.width == 160
+
+
+def test_train_preset_keeps_its_stage_boundaries_under_an_iteration_override():
+    from radar4dgs.model.config import TrainConfig
+
+    short = preset(TrainConfig, "small", optim={"iterations": 600})
+    full = preset(TrainConfig, "small")
+    assert short.optim.iterations == 600
+    assert (short.optim.stage2_start, short.optim.stage3_start) == (full.optim.stage2_start, full.optim.stage3_start)
+    assert full.optim.stage2_start != TrainConfig().optim.stage2_start
 
 
 def test_unknown_preset_and_field_are_refused():

@@ -24,15 +24,25 @@ def preset(cls: type[T], name: str, **overrides: Any) -> T:
     """An instance of dataclass ``cls`` with preset ``name`` applied, then ``overrides``.
 
     ``cls.PRESETS`` maps preset names to dicts of field values (nested dataclass fields take
-    nested dicts). Unknown preset names and unknown fields raise a ValueError that lists the
-    valid ones.
+    nested dicts). A nested override is merged into the preset's group key by key:
+    ``optim={"iterations": 600}`` on ``small`` keeps that preset's stage boundaries. Unknown preset
+    names and unknown fields raise a ValueError that lists the valid ones.
     """
     presets: Mapping[str, Mapping[str, Any]] = getattr(cls, "PRESETS", {})
     if name not in PRESET_NAMES:
         raise ValueError(f"unknown preset {name!r}; choose one of {list(PRESET_NAMES)}")
-    values = dict(presets.get(name, {}))
-    values.update(overrides)
-    return from_dict(cls, values, partial=True)
+    return from_dict(cls, merge(presets.get(name, {}), overrides), partial=True)
+
+
+def merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` updated by ``update``, nested dicts merged key by key."""
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def to_dict(config: Any) -> dict:

@@ -59,7 +59,7 @@ def scene_overrides(settings: Mapping[str, Any] | None, resources: Resources, it
     """Every scene's TrainConfig overrides: ``settings``, torch threads = the task's CPUs (unless
     set), the device cuda when the task declares a GPU and cpu when it declares none (unless set:
     TrainConfig's "auto" would take a GPU the task did not reserve), ``iterations`` when given."""
-    from radar4dgs.train.variants import merge
+    from radar4dgs.config import merge
 
     settings = dict(settings or {})
     overrides: dict[str, Any] = {"threads": max(1, int(resources.cpus))}

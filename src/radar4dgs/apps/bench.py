@@ -36,9 +36,9 @@ from radar4dgs.apps.bench_cell import run_cell, run_grid
 from radar4dgs.apps.bench_spec import BenchError, BenchScene, CellSpec, check_methods, parse_overrides, resolve_scenes
 from radar4dgs.apps.bench_table import PLOT_FILE, TABLE_CSV, TABLE_MD, summarize, write_outputs
 from radar4dgs.apps.options import default_is
-from radar4dgs.config import PresetName
+from radar4dgs.config import PresetName, merge
 from radar4dgs.io.atomic import atomic_write_json
-from radar4dgs.train.variants import METHOD_NAMES, VARIANTS, MethodName, merge, variant_config
+from radar4dgs.train.variants import METHOD_NAMES, VARIANTS, MethodName, variant_config
 
 BENCH_FILE = "bench.json"
 RUNS_DIR = "runs"

@@ -215,10 +215,10 @@ def resumed_config(run: Path, requested: TrainConfig, defaults: TrainConfig,
     """(the run's own config, ``RUN/config.json``, with the options of ``requested`` that differ
     from ``defaults`` (the preset's) on top, and method ``method``'s fields; the lines where it
     differs from the run's, runtime fields not counted)."""
-    from radar4dgs.config import from_dict, read_config_dict, to_dict
+    from radar4dgs.config import from_dict, merge, read_config_dict, to_dict
     from radar4dgs.model.run import CONFIG_FILE
     from radar4dgs.train.run_config import run_config_difference, with_legacy_values
-    from radar4dgs.train.variants import apply_variant, merge
+    from radar4dgs.train.variants import apply_variant
 
     saved = from_dict(TrainConfig, with_legacy_values(read_config_dict(TrainConfig, run / CONFIG_FILE)), partial=False)
     given = changed_values(to_dict(defaults), to_dict(requested))

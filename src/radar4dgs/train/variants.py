@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any, Literal, Mapping, get_args
 
-from radar4dgs.config import PresetName, preset
+from radar4dgs.config import PresetName, merge, preset
 
 MethodName = Literal[
     "ours", "static", "deformable", "pvg", "bspline",
@@ -44,17 +44,6 @@ VARIANTS: Mapping[str, tuple[str, Mapping[str, Any]]] = {
 }
 
 
-def merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` updated by ``update``, nested dicts merged key by key."""
-    out = dict(base)
-    for key, value in update.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def variant_values(name: str) -> Mapping[str, Any]:
     """The TrainConfig fields method ``name`` sets; a ValueError lists the names for an unknown one."""
     if name not in VARIANTS:
@@ -76,5 +65,4 @@ def variant_config(preset_name: PresetName, name: str, **overrides: Any):
     fields, so a method always is what its name says."""
     from radar4dgs.model.config import TrainConfig
 
-    values = merge(TrainConfig.PRESETS.get(preset_name, {}), overrides)
-    return apply_variant(preset(TrainConfig, preset_name, **values), name)
+    return apply_variant(preset(TrainConfig, preset_name, **overrides), name)
