@@ -130,12 +130,15 @@ def test_a_component_that_nothing_matches_is_dropped_not_lifted():
     inputs = pair_inputs(pair)
     back = ObjectHint(np.array([[136.0, 60.0], [140.0, 55.0]]), pair["velocity"])  # the object in b
     hints = {"hints_i": [hint(pair)], "hints_j": [back], "dt": DT}
-    kept = pair_scene_flow(FlowConfig(max_component_error_ratio=0.0, max_pixel_error=0.0), **inputs, **hints)
+    # The dense flow favoured (radar_dense_margin > 1): its failure here is consistent both ways.
+    favoured = {"radar_dense_margin": 1.2}
+    kept = pair_scene_flow(FlowConfig(max_component_error_ratio=0.0, max_pixel_error=0.0, **favoured),
+                           **inputs, **hints)
     # The premise: without the drop, some of the failed match passes the consistency check and
     # would be lifted.
     assert sum(kept.models[m] for m in ("dense", "translation", "radar", "matched")) == 1
     assert len(kept.points_i) > 0
-    dropped = pair_scene_flow(FlowConfig(), **inputs, **hints)
+    dropped = pair_scene_flow(FlowConfig(**favoured), **inputs, **hints)
     assert not dropped.reliable[pair["mask_a"]].any()
     assert len(dropped.points_i) == 0
 
@@ -193,3 +196,36 @@ def test_a_match_must_clearly_beat_the_radar_prediction(matched_greys, expected,
                   for name, offset in (("dense", 20), ("radar", 50), ("matched", 80))}
     model, found = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
     assert model == expected and found == pytest.approx(error)
+
+
+def _graded_candidates(greys: dict[str, int]):
+    """Frame a flat grey 100 on a 10 x 10 object; candidate k lands on a patch of b of grey
+    ``greys[k]``, so its mean absolute error is exactly ``greys[k] - 100``."""
+    gray_a = np.full((30, 40 + 30 * len(greys)), 100, np.uint8)
+    gray_b = gray_a.copy()
+    v, u = np.mgrid[0:10, 0:10]
+    pixels = np.stack([u.ravel() + 5, v.ravel() + 5], axis=1)
+    candidates = {}
+    for k, (name, grey) in enumerate(greys.items()):
+        offset = 20 + 30 * k
+        gray_b[5:15, 5 + offset:15 + offset] = grey
+        candidates[name] = (pixels + [offset, 0]).astype(np.float64)
+    return gray_a, gray_b, pixels, candidates
+
+
+@pytest.mark.parametrize(("dense_error", "expected"), [(9, "radar"), (7.5, "radar"), (6, "dense")])
+def test_the_dense_flow_must_clearly_beat_the_radar_prediction(dense_error, expected):
+    # Radar prediction 10 grey levels: the dense flow wins only below 0.7 x 10.
+    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 100 + int(dense_error * 2) // 2,
+                                                              "radar": 110})
+    if dense_error == 7.5:  # half 107, half 108
+        gray_b[5:10, 25:35], gray_b[10:15, 25:35] = 107, 108
+    model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25, dense_margin=0.7)
+    assert model == expected
+
+
+@pytest.mark.parametrize(("translation_grey", "expected"), [(110, "dense"), (108, "translation")])
+def test_without_a_radar_prediction_the_dense_flow_stays_unless_clearly_beaten(translation_grey, expected):
+    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 110, "translation": translation_grey})
+    model, error = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25, dense_margin=0.7)
+    assert model == expected and error == pytest.approx(10.0 if expected == "dense" else 8.0)

@@ -99,6 +99,13 @@ class FlowConfig:
     # (max |log singular value| of the ratio; 0.15 = 16 %); beyond, ECC has wandered off on a nearly
     # uniform object, and the searched translation stays.
     radar_max_shape_change: float = 0.15
+    # For a component with a radar prediction, the dense flow wins over the best rigid candidate
+    # (prediction, matched warp, translation) only when its error is below this fraction of that
+    # one's. Per-pixel freedom lets the dense flow match grey levels it gets wrong: on the rush
+    # 5 Hz tuning seeds 214-218 it won by a hair (2.9 grey levels against the prediction's 2.8) at
+    # 1-3 px of error where the prediction had 0.1-0.3; dynamic pixels of radar objects,
+    # adjacent pairs, 0.99 -> 0.69 px (ties to the dense flow: 0.99; margins 0.6-0.8: 0.66-0.70).
+    radar_dense_margin: float = 0.7
     # After the choice, a pixel keeps its dense flow where that agrees with the chosen motion
     # within this (px). 0 = the chosen motion on the whole component: measured better (synthetic
     # seeds 1-3 and realistic 101-103, 2D and scene-flow EPE), 1 px cost 0.02 m of scene-flow EPE

@@ -9,8 +9,9 @@ Per connected component of the dynamic mask of frame a (one object):
 2. candidates: the dense flow, today's translation (:func:`.rigid.component_translation`), the
    radar prediction (the pixels' 3D points moved by velocity x dt, projected into frame b) and an
    affine warp matched around the prediction (:mod:`.warp_match`: translation search, then ECC);
-3. the candidate with the least photometric error wins (dense stays unless another beats
-   ``rigid_accept`` x its error; a radar prediction taking the object out of view wins, see
+3. the rigid candidate with the least photometric error wins (the radar prediction unless another
+   beats ``rigid_accept`` x its error), and the dense flow only if its error is below
+   ``radar_dense_margin`` x that one's; a radar prediction taking the object out of view wins (see
    :func:`choose_candidate`); with ``radar_dense_agreement`` > 0, pixels whose dense flow agrees
    with the winner within that many px keep it.
 
@@ -120,13 +121,19 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
 
 
 def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
-                     candidates: dict[str, np.ndarray], accept: float, min_inside: float) -> tuple[str, float]:
-    """(model, its mean abs grey error): the candidate explaining the images best; "dense" unless
-    another's error is below ``accept`` x the dense flow's (the dense flow is finer where right),
-    and "radar" over a translation or match unless that one's error is below ``accept`` x the radar
-    prediction's: a search finds SOME shift with a lower error on a car's uniform paint (rush 5 Hz
-    tuning seed 214: a match 13 px off the truth scored 10.6 grey levels against the 2.8 px
-    prediction's 10.9), while the prediction carries the tracked velocity.
+                     candidates: dict[str, np.ndarray], accept: float, min_inside: float,
+                     dense_margin: float = 0.7) -> tuple[str, float]:
+    """(model, its mean abs grey error): the candidate explaining the images best.
+
+    With a radar prediction, the rigid candidates ("radar", "translation", "matched") are compared
+    first: "radar" over a translation or match unless that one's error is below ``accept`` x the
+    radar prediction's (a search finds SOME shift with a lower error on a car's uniform paint; rush
+    5 Hz tuning seed 214: a match 13 px off the truth scored 10.6 grey levels against the 2.8 px
+    prediction's 10.9), since the prediction carries the tracked velocity. The dense flow then
+    wins only with an error below ``dense_margin`` x the chosen one's (``FlowConfig.radar_dense_margin``:
+    its per-pixel freedom fits grey levels it gets wrong). Without a radar prediction the dense flow
+    stays unless another candidate's error is below ``accept`` x its own (the dense flow is finer
+    where right).
 
     A radar prediction that takes the object out of view (a car passing the camera) cannot be
     checked in the images and wins: the candidates that keep it in view are the failures (DIS
@@ -135,12 +142,18 @@ def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
     """
     errors = {name: mean_abs_error(gray_a, gray_b, pixels, targets, min_inside)
               for name, targets in candidates.items()}
-    if "radar" in errors and errors["radar"] == np.inf:
+    if "radar" not in errors:
+        best = min(errors, key=errors.__getitem__)
+        if best != "dense" and not errors[best] < accept * errors["dense"]:
+            best = "dense"
+        return best, errors[best]
+    if errors["radar"] == np.inf:
         return "radar", np.inf
-    best = min(errors, key=errors.__getitem__)
-    if best in ("translation", "matched") and "radar" in errors and not errors[best] < accept * errors["radar"]:
+    rigid = {name: error for name, error in errors.items() if name != "dense"}
+    best = min(rigid, key=rigid.__getitem__)
+    if best != "radar" and not rigid[best] < accept * rigid["radar"]:
         best = "radar"
-    if best != "dense" and not errors[best] < accept * errors["dense"]:
+    if "dense" in errors and errors["dense"] < dense_margin * errors[best]:
         best = "dense"
     return best, errors[best]
 
@@ -180,7 +193,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
         else:
             candidates = candidate_targets(gray_a, gray_b, component, pixels, dense, owners[label], geometry, config)
             model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, config.rigid_accept,
-                                            config.radar_min_inside)
+                                        config.radar_min_inside, config.radar_dense_margin)
             counts[model] += 1
             motion = candidates[model] - pixels
             if config.radar_dense_agreement > 0:
