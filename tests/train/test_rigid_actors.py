@@ -1,6 +1,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -10,7 +11,14 @@ from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.train.optimizers import adam
-from radar4dgs.train.rigid_actors import fit_rigid_track, procrustes_yaw, rigid_actor_motion, rigid_members
+from radar4dgs.train.rigid_actors import (
+    actor_image_motion,
+    fit_rigid_track,
+    procrustes_yaw,
+    rigid_actor_motion,
+    rigid_members,
+    start_rigid_actors,
+)
 
 
 def turn(points: np.ndarray, yaw: float) -> np.ndarray:
@@ -82,3 +90,55 @@ def test_switching_to_rigid_actors_keeps_every_position_between_and_beyond_the_k
         torch.testing.assert_close(model.set_at("dynamic", t)["means"], expected, atol=1e-6, rtol=0)
     payload = SceneModel.from_payload(model.payload(), dtype=torch.float64)
     torch.testing.assert_close(payload.set_at("dynamic", 0.3)["means"], model.set_at("dynamic", 0.3)["means"])
+
+
+K_TEST = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])
+
+
+def sliding_centroids(frames: int, step_m: float, depth: float = 10.0) -> np.ndarray:
+    """(F, 3) a centroid ``depth`` m in front of an identity camera, moving ``step_m`` m along x a frame."""
+    return np.stack([np.arange(frames) * step_m, np.zeros(frames), np.full(frames, depth)], axis=1)
+
+
+def test_actor_image_motion_is_the_projected_step_between_consecutive_frames():
+    poses = np.repeat(np.eye(4)[None], 8, axis=0)
+    centroids = sliding_centroids(8, 0.5)  # f * 0.5 m / 10 m = 5 px a frame
+    assert actor_image_motion(centroids, np.array([0, 1, 2, 3, 6, 7]), poses, K_TEST) == pytest.approx(5.0)
+    centroids[3, 0] += 4.0  # frame 3 alone 40 px off: the steps 2->3 and 3->4 are 45 and 35 px
+    steps = np.array([5.0, 5.0, 45.0, 35.0, 5.0, 5.0, 5.0])
+    assert actor_image_motion(centroids, np.arange(8), poses, K_TEST) == pytest.approx(np.percentile(steps, 90))
+    assert actor_image_motion(centroids, np.array([0, 2, 4]), poses, K_TEST) == 0.0  # no consecutive pair
+    behind = sliding_centroids(8, 0.5, depth=-10.0)
+    assert actor_image_motion(behind, np.arange(8), poses, K_TEST) == 0.0
+
+
+def test_only_actors_moving_far_enough_in_the_image_become_rigid(monkeypatch):
+    import types
+
+    import radar4dgs.train.rigid_actors as rigid_module
+
+    model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]))
+    frames = 6
+    actors = [types.SimpleNamespace(gaussians=members, centroid=sliding_centroids(frames, step),
+                                    frames=np.arange(frames))
+              for members, step in zip(groups, (1.0, 0.0), strict=True)]
+    monkeypatch.setattr(rigid_module, "discover_actors", lambda *args, **kwargs: actors)
+
+    class Scene:  # 100 px wide; the fast actor moves 10 px a frame, the other not at all
+        camera = types.SimpleNamespace(K=K_TEST, width=100)
+
+        def __len__(self):
+            return frames
+
+        def world_to_camera(self, index):
+            return np.eye(4)
+
+    optimizers = {"dynamic": adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)}
+    line = start_rigid_actors(model, Scene(), None, np.linspace(0.1, 0.9, 5), optimizers, 0.002, min_motion=0.05)
+    assert line.startswith("rigid actors: 1 of 2 actors")
+    actor = model.dynamic.params["actor"].long()
+    assert (actor[groups[0]] == 0).all() and (actor[groups[1]] == -1).all() and "actors" in optimizers
+    model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]))
+    optimizers = {"dynamic": adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)}
+    line = start_rigid_actors(model, Scene(), None, np.linspace(0.1, 0.9, 5), optimizers, 0.002, min_motion=0.2)
+    assert "none of 2 actors moves 20.0 px" in line and model.actor_motion is None and "actors" not in optimizers

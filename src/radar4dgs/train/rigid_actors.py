@@ -135,10 +135,36 @@ def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: 
     model.actor_motion = motion
 
 
+def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camera: np.ndarray,
+                       K: np.ndarray) -> float:
+    """90th percentile (px) of how far an actor's centroid moves in the image from a visible frame to
+    the next one (consecutive frames only; a frame with the centroid less than 0.5 m in front of
+    the camera is skipped), each frame seen by its own camera; 0 when no pair is left.
+
+    Args:
+        centroids: (F, 3) world centroid per frame. frames: (V,) visible frame indices, ascending.
+        world_to_camera: (F, 4, 4). K: (3, 3).
+    """
+    frames = np.asarray(frames, dtype=np.int64)
+    pairs = frames[:-1][np.diff(frames) == 1]
+    if len(pairs) == 0:
+        return 0.0
+    both = np.concatenate([pairs, pairs + 1])
+    cam = np.einsum("fij,fj->fi", world_to_camera[both, :3, :3], centroids[both]) + world_to_camera[both, :3, 3]
+    in_front = cam[:, 2] > 0.5
+    uv = (cam @ np.asarray(K, dtype=np.float64).T)[:, :2] / np.where(in_front, cam[:, 2], 1.0)[:, None]
+    n = len(pairs)
+    keep = in_front[:n] & in_front[n:]
+    if not keep.any():
+        return 0.0
+    return float(np.percentile(np.linalg.norm(uv[n:] - uv[:n], axis=1)[keep], 90))
+
+
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
-                       optimizers: dict[str, torch.optim.Optimizer], lr: float) -> str:
+                       optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
-    them) and, when there are any, move each rigidly from now on: the motion installed in ``model``
+    them) and, for those moving at least ``min_motion`` x the image width a frame in the image
+    (:func:`actor_image_motion`), move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
     "actors". Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
@@ -147,8 +173,16 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
     actors = discover_actors(model, scene, radar_objects)
     if not actors:
         return f"rigid actors: no actor found; the field keeps every dynamic Gaussian{without}"
+    found = len(actors)
+    if min_motion > 0:
+        poses = np.stack([scene.world_to_camera(i) for i in range(len(scene))])
+        threshold = min_motion * scene.camera.width
+        actors = [a for a in actors if actor_image_motion(a.centroid, a.frames, poses, scene.camera.K) >= threshold]
+        if not actors:
+            return (f"rigid actors: none of {found} actors moves {threshold:.1f} px a frame in the image; the "
+                    f"field keeps every dynamic Gaussian{without}")
     motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
-    return (f"rigid actors: {len(actors)} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
+    return (f"rigid actors: {len(actors)} of {found} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
             f"Gaussians move rigidly{without}")

@@ -266,7 +266,7 @@ class Trainer:
         self._rigid_actors_tried = True
         key_times = self.times[np.asarray(self.train_indices)]
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
-                                    self.config.rigid_actors_lr))
+                                    self.config.rigid_actors_lr, self.config.rigid_actors_min_motion))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
@@ -388,7 +388,8 @@ class Trainer:
         stage = config.stage_at(step)
         if config.method == "ours" and stage >= 2 and state.model.dynamic is None:
             self._start_dynamic(state)
-        if (config.rigid_actors_at > 0 and state.model.dynamic is not None and state.model.actor_motion is None
+        if (config.rigid_actors_at > 0 and config.method == "ours" and state.model.dynamic is not None
+                and state.model.actor_motion is None
                 and not self._rigid_actors_tried and step >= round(config.rigid_actors_at * config.optim.iterations)):
             self._start_rigid_actors(state)
         set_learning_rates(state.optimizers, config, self.extent, step)
