@@ -246,7 +246,7 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
     config = tiny_config(rigid_actors_at=0.75)  # the switch at step 18 of 24, in stage 3
     logs: list[str] = []
     unbroken = Trainer(scene, prep, tmp_path / "a", config, progress=False, log=logs.append).train()
-    assert any(line.startswith("rigid actors: 2 actors") and "without radar" not in line for line in logs)
+    assert any(line.startswith("rigid actors: 2 of 2 actors") and "without radar" not in line for line in logs)
     assert given[0] is not None and len(given[0]) == len(read_scene_folder(scene))  # the prepared radar objects
     motion = unbroken.model.actor_motion
     assert len(motion) == 2 and motion.key_times.numel() == len(scene_train_indices(scene))
