@@ -229,3 +229,12 @@ def test_without_a_radar_prediction_the_dense_flow_stays_unless_clearly_beaten(t
     gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 110, "translation": translation_grey})
     model, error = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25, dense_margin=0.7)
     assert model == expected and error == pytest.approx(10.0 if expected == "dense" else 8.0)
+
+
+@pytest.mark.parametrize(("radar_grey", "expected"), [(119, "dense"), (117, "radar")])
+def test_by_default_the_radar_prediction_must_beat_the_dense_flow_by_a_tenth(radar_grey, expected):
+    # Dense flow 20 grey levels: the prediction takes over only below 0.9 x 20 = 18 (the default
+    # margin 1/0.9 keeps the rule the reconstructions were measured with).
+    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 120, "radar": radar_grey})
+    model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
+    assert model == expected

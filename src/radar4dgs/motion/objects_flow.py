@@ -10,7 +10,7 @@ Per connected component of the dynamic mask of frame a (one object):
    radar prediction (the pixels' 3D points moved by velocity x dt, projected into frame b) and an
    affine warp matched around the prediction (:mod:`.warp_match`: translation search, then ECC);
 3. the rigid candidate with the least photometric error wins (the radar prediction unless another
-   beats ``rigid_accept`` x its error), and the dense flow only if its error is below
+   beats ``rigid_accept`` x its error), and the dense flow if its error is below
    ``radar_dense_margin`` x that one's; a radar prediction taking the object out of view wins (see
    :func:`choose_candidate`); with ``radar_dense_agreement`` > 0, pixels whose dense flow agrees
    with the winner within that many px keep it.
@@ -122,7 +122,7 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
 
 def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
                      candidates: dict[str, np.ndarray], accept: float, min_inside: float,
-                     dense_margin: float = 0.7) -> tuple[str, float]:
+                     dense_margin: float = 1.0 / 0.9) -> tuple[str, float]:
     """(model, its mean abs grey error): the candidate explaining the images best.
 
     With a radar prediction, the rigid candidates ("radar", "translation", "matched") are compared
@@ -130,10 +130,10 @@ def choose_candidate(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray,
     radar prediction's (a search finds SOME shift with a lower error on a car's uniform paint; rush
     5 Hz tuning seed 214: a match 13 px off the truth scored 10.6 grey levels against the 2.8 px
     prediction's 10.9), since the prediction carries the tracked velocity. The dense flow then
-    wins only with an error below ``dense_margin`` x the chosen one's (``FlowConfig.radar_dense_margin``:
-    its per-pixel freedom fits grey levels it gets wrong). Without a radar prediction the dense flow
-    stays unless another candidate's error is below ``accept`` x its own (the dense flow is finer
-    where right).
+    wins with an error below ``dense_margin`` x the chosen one's (``FlowConfig.radar_dense_margin``;
+    the default 1/0.9 keeps it unless a rigid candidate beats 0.9 x its error). Without a radar
+    prediction the dense flow stays unless another candidate's error is below ``accept`` x its own
+    (the dense flow is finer where right).
 
     A radar prediction that takes the object out of view (a car passing the camera) cannot be
     checked in the images and wins: the candidates that keep it in view are the failures (DIS
