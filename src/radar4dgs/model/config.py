@@ -368,9 +368,9 @@ class TrainConfig:
     # Only actors whose centroid moves at least this far in the image from one frame to the next
     # (90th percentile over their consecutive visible frames; a fraction of the image width) move
     # rigidly; the field keeps the others. A lead car followed at the ego's speed hardly moves in
-    # the image, and the field holds it better than per-frame poses (calm synthetic seeds 1 and 2,
-    # whose actors move at most 5 px a frame at 320 px: -0.22 and -0.66 dB of novel-view PSNR*
-    # with every actor rigid). 0 = every actor.
+    # the image, and the field holds it better than per-frame poses (calm synthetic seeds 1-3,
+    # whose actors move at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09 dB of novel-view
+    # PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
     # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
     # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
