@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from radar4dgs.actors.discover import discover_actors
+from radar4dgs.depth.geometry import project
 from radar4dgs.model.actor_motion import ActorMotion
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.radar.objects import optional_radar_objects
@@ -151,10 +152,9 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
         return 0.0
     both = np.concatenate([pairs, pairs + 1])
     cam = np.einsum("fij,fj->fi", world_to_camera[both, :3, :3], centroids[both]) + world_to_camera[both, :3, 3]
-    in_front = cam[:, 2] > 0.5
-    uv = (cam @ np.asarray(K, dtype=np.float64).T)[:, :2] / np.where(in_front, cam[:, 2], 1.0)[:, None]
+    uv, z = project(np.asarray(K, dtype=np.float64), cam)
     n = len(pairs)
-    keep = in_front[:n] & in_front[n:]
+    keep = (z[:n] > 0.5) & (z[n:] > 0.5)
     if not keep.any():
         return 0.0
     return float(np.percentile(np.linalg.norm(uv[n:] - uv[:n], axis=1)[keep], 90))
