@@ -180,27 +180,10 @@ def test_the_flow_stage_uses_the_prepared_radar_objects(motion_scene, tmp_path):
 
 
 
-@pytest.mark.parametrize(("matched_greys", "expected", "error"), [((109, 110), "radar", 10.0),
-                                                                  ((108, 108), "matched", 8.0)])
-def test_a_match_must_clearly_beat_the_radar_prediction(matched_greys, expected, error):
-    # Frame a is flat grey 100 on a 10 x 10 object; each candidate lands on a patch of b whose grey
-    # sets its error exactly: dense 30, radar 10, the match 9.5 (half 109, half 110: within accept =
-    # 0.9 of the radar prediction's, the prediction stays) or 8 (clearly better: the match wins).
-    gray_a = np.full((30, 120), 100, np.uint8)
-    gray_b = np.full((30, 120), 100, np.uint8)
-    v, u = np.mgrid[0:10, 0:10]
-    pixels = np.stack([u.ravel() + 5, v.ravel() + 5], axis=1)
-    gray_b[5:15, 25:35], gray_b[5:15, 55:65] = 130, 110
-    gray_b[5:15, 85:90], gray_b[5:15, 90:95] = matched_greys
-    candidates = {name: (pixels + [offset, 0]).astype(np.float64)
-                  for name, offset in (("dense", 20), ("radar", 50), ("matched", 80))}
-    model, found = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
-    assert model == expected and found == pytest.approx(error)
-
-
-def _graded_candidates(greys: dict[str, int]):
+def _graded_candidates(greys: dict[str, int | tuple[int, int]]):
     """Frame a flat grey 100 on a 10 x 10 object; candidate k lands on a patch of b of grey
-    ``greys[k]``, so its mean absolute error is exactly ``greys[k] - 100``."""
+    ``greys[k]`` (or a (left, right) pair of greys, one per half), so its mean absolute error is
+    exactly ``greys[k] - 100`` (the halves' mean)."""
     gray_a = np.full((30, 40 + 30 * len(greys)), 100, np.uint8)
     gray_b = gray_a.copy()
     v, u = np.mgrid[0:10, 0:10]
@@ -208,18 +191,26 @@ def _graded_candidates(greys: dict[str, int]):
     candidates = {}
     for k, (name, grey) in enumerate(greys.items()):
         offset = 20 + 30 * k
-        gray_b[5:15, 5 + offset:15 + offset] = grey
+        left, right = grey if isinstance(grey, tuple) else (grey, grey)
+        gray_b[5:15, 5 + offset:10 + offset], gray_b[5:15, 10 + offset:15 + offset] = left, right
         candidates[name] = (pixels + [offset, 0]).astype(np.float64)
     return gray_a, gray_b, pixels, candidates
 
 
-@pytest.mark.parametrize(("dense_error", "expected"), [(9, "radar"), (7.5, "radar"), (6, "dense")])
-def test_the_dense_flow_must_clearly_beat_the_radar_prediction(dense_error, expected):
-    # Radar prediction 10 grey levels: the dense flow wins only below 0.7 x 10.
-    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 100 + int(dense_error * 2) // 2,
-                                                              "radar": 110})
-    if dense_error == 7.5:  # half 107, half 108
-        gray_b[5:10, 25:35], gray_b[10:15, 25:35] = 107, 108
+@pytest.mark.parametrize(("matched_greys", "expected", "error"), [((109, 110), "radar", 10.0),
+                                                                  ((108, 108), "matched", 8.0)])
+def test_a_match_must_clearly_beat_the_radar_prediction(matched_greys, expected, error):
+    # Errors: dense 30, radar 10, the match 9.5 (half 109, half 110: within accept = 0.9 of the
+    # radar prediction's, the prediction stays) or 8 (clearly better: the match wins).
+    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 130, "radar": 110, "matched": matched_greys})
+    model, found = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
+    assert model == expected and found == pytest.approx(error)
+
+
+@pytest.mark.parametrize(("dense_greys", "expected"), [(109, "radar"), ((107, 108), "radar"), (106, "dense")])
+def test_the_dense_flow_must_clearly_beat_the_radar_prediction(dense_greys, expected):
+    # Radar prediction 10 grey levels, the dense flow 9, 7.5 or 6: it wins only below 0.7 x 10.
+    gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": dense_greys, "radar": 110})
     model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25, dense_margin=0.7)
     assert model == expected
 
