@@ -62,8 +62,9 @@ def test_the_tracker_separates_a_lane_changes_yaw_rate_from_its_velocity():
     assert errors[turning].max() < 1.0 and np.median(errors) < 0.3
     np.testing.assert_allclose(states[turning, 4], rates[turning], atol=0.05)
     assert min(f.turning[0] for f in np.array(out)[turning]) > 0.5
-    # Straight only (the turning model never starts): the tracked velocity follows the biased fits.
-    straight = track_detections(times, z, R, RadarObjectConfig(turn_start_probability=0.0), radars)
+    # Straight only (no turning model ever starts): the tracked velocity follows the biased fits.
+    straight_only = RadarObjectConfig(turn_start_probability=0.0, gentle_turn_yaw_accel_std=0.0)
+    straight = track_detections(times, z, R, straight_only, radars)
     straight_errors = np.linalg.norm(np.array([f.states[0, 2:4] for f in straight]) - velocity, axis=1)
     assert straight_errors[turning].min() > 3.0
 
@@ -110,12 +111,22 @@ def test_smoothing_gives_a_new_tracks_radial_only_scans_the_velocity_the_later_s
 
 def test_smoothing_follows_a_gentle_lane_change_that_the_forward_filter_drifts_on():
     times, z, R, radars, velocity, rates = lane_change(omega=0.1, fps=10.0, seed=3)
-    forward = track_detections(times, z, R, RadarObjectConfig(), radars)
-    smoothed = smooth_tracks(times, z, R, forward, RadarObjectConfig(), radars)
+    two_models = RadarObjectConfig(gentle_turn_yaw_accel_std=0.0)
+    forward = track_detections(times, z, R, two_models, radars)
+    smoothed = smooth_tracks(times, z, R, forward, two_models, radars)
     before, after = velocity_errors(forward, velocity), velocity_errors(smoothed, velocity)
     # 0.1 rad/s x ~17 m = 1.7 m/s of bias, too slow for the turning model to take over going forward.
     assert np.percentile(before, 90) > 1.5
     assert np.percentile(after, 90) < 0.7 and np.median(after) <= np.median(before)
+
+
+def test_the_gently_turning_model_follows_a_gentle_lane_change_going_forward():
+    times, z, R, radars, velocity, rates = lane_change(omega=0.1, fps=10.0, seed=3)
+    out = track_detections(times, z, R, RadarObjectConfig(), radars)
+    errors = velocity_errors(out, velocity)
+    # Two models only, the same track drifts by more than 1.5 m/s (the test above).
+    assert np.percentile(errors, 90) < 0.6 and errors.max() < 1.0
+    assert max(f.turning[0] for f in out) < 0.5          # the (sharp) turning model stays out of it
 
 
 def test_smoothing_keeps_a_straight_track_and_its_last_frame():

@@ -61,6 +61,11 @@ class RadarObjectConfig:
     # Tracking: white yaw-acceleration process noise std (rad/s^2); a lane change goes from 0 to
     # 0.45 rad/s and back within ~1 s.
     yaw_accel_std: float = 1.0
+    # Tracking: a third model between straight and turning, for long bends: yaw-rate noise std
+    # (rad/s^2) of a model that turns gently and accelerates like the straight one; 0 = no such model.
+    gentle_turn_yaw_accel_std: float = 0.2
+    # Tracking: per-scan probability of switching between the straight and the gently turning model.
+    gentle_turn_switch_probability: float = 0.05
     # Tracking (interacting multiple models, straight and turning): per-scan probability that a
     # straight track starts turning, and that a turning one goes straight again.
     turn_start_probability: float = 0.05

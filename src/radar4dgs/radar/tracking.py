@@ -1,10 +1,15 @@
-"""Tracking of radar objects in the world's ground plane: two motion models per track, going
-straight and turning, mixed by an interacting multiple model (IMM) filter.
+"""Tracking of radar objects in the world's ground plane: three motion models per track, going
+straight, turning gently and turning, mixed by an interacting multiple model (IMM) filter.
 
 State ``x = (p_x, p_y, v_x, v_y, omega)`` (world, m, m/s, rad/s). The turning model is the
 coordinated turn (``v`` rotates at the yaw rate ``omega``, an extended Kalman filter); the straight
 model holds ``omega = 0`` and lets a track faster than 1 m/s accelerate only ``lateral_accel_std``
-across its velocity (a road vehicle brakes along its heading; sideways it turns).
+across its velocity (a road vehicle brakes along its heading; sideways it turns). The gently turning
+model is the coordinated turn with the straight model's acceleration and a small yaw-rate noise
+(``gentle_turn_yaw_accel_std``): a bend or a slow lane change at 0.05-0.1 rad/s is too slow for the
+turning model, whose yaw-rate noise is sized for lane changes at 0.45 rad/s, to win scan by scan, and
+the straight model then reads the Doppler's ``omega J (r - p)`` (0.1 rad/s x 20 m = 2 m/s, below) as
+velocity.
 
 Why the yaw rate. The Doppler of a rigid object that turns does not measure its velocity: a body
 point ``x`` moves at ``v + omega J (x - p)`` (``J`` the 90 deg rotation, ``p`` the reference point),
@@ -14,7 +19,7 @@ velocity field AT THE RADAR, ``w = v + omega J (r - p)``, exactly, for any sprea
 changing lanes 15 m ahead at 0.45 rad/s thus reads 6.8 m/s off across the line of sight. Both models
 measure ``z = (centroid, w)`` with ``h(x) = (p, v + omega J (r - p))``; a jump of ``w`` across the
 line of sight that the straight model cannot follow makes the turning model the likelier one.
-Why two models: the turning model alone also explains a new track's unknown tangential velocity
+Why not the turning model alone: it also explains a new track's unknown tangential velocity
 (a radial-only first fit) by a yaw rate, and then needs many scans to undo it.
 
 Each frame's detections are assigned to the tracks' combined predictions by the Hungarian method on
@@ -69,12 +74,13 @@ def acceleration_covariance(v: np.ndarray, config: RadarObjectConfig, straight: 
     return config.accel_std ** 2 * np.outer(u, u) + config.lateral_accel_std ** 2 * np.outer(_J @ u, _J @ u)
 
 
-def predict(x: np.ndarray, P: np.ndarray, dt: float, config: RadarObjectConfig, straight: bool = False
-            ) -> tuple[np.ndarray, np.ndarray]:
+def predict(x: np.ndarray, P: np.ndarray, dt: float, config: RadarObjectConfig, straight: bool = False,
+            yaw_accel_std: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """State (5,) and covariance (5, 5) moved ``dt`` seconds ahead by the coordinated turn:
     ``v <- R(omega dt) v``, ``p <- p + dt R(omega dt / 2) v`` (midpoint rule), with the linearised
     transition for the covariance, white acceleration (:func:`acceleration_covariance`) on p, v and
-    white yaw acceleration (``yaw_accel_std``; none for the ``straight`` model) on omega."""
+    white yaw acceleration on omega (``yaw_accel_std``, by default the config's, none for a
+    ``straight`` model)."""
     p, v, omega = x[:2], x[2:4], float(x[4])
     half, full = _rotation(omega * dt / 2), _rotation(omega * dt)
     F = np.eye(5)
@@ -84,7 +90,8 @@ def predict(x: np.ndarray, P: np.ndarray, dt: float, config: RadarObjectConfig, 
     F[2:4, 4] = dt * (_J @ full @ v)
     Q = np.zeros((5, 5))
     Q[:4, :4] = cv_transition(dt, acceleration_covariance(v, config, straight))[1]
-    Q[4, 4] = 0.0 if straight else (config.yaw_accel_std * dt) ** 2
+    yaw_accel_std = (0.0 if straight else config.yaw_accel_std) if yaw_accel_std is None else yaw_accel_std
+    Q[4, 4] = (yaw_accel_std * dt) ** 2
     moved = np.concatenate([p + dt * half @ v, full @ v, [omega]])
     P_new = F @ P @ F.T + Q
     return moved, 0.5 * (P_new + P_new.T)
@@ -124,8 +131,8 @@ def mahalanobis_sq(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, r
 
 @dataclass
 class _Track:
-    """One track: the IMM's per-model states ``x`` (2, 5), covariances ``P`` (2, 5, 5) and model
-    probabilities ``mu`` (2,), model 0 going straight (omega held at 0), model 1 turning."""
+    """One track: the IMM's per-model states ``x`` (K, 5), covariances ``P`` (K, 5, 5) and model
+    probabilities ``mu`` (K,) in the order of :func:`_models` (straight first, turning last)."""
 
     id: int
     x: np.ndarray
@@ -134,7 +141,7 @@ class _Track:
     missed: int = 0
 
     def combined(self, mu: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(5,) state and (5, 5) covariance of the mixture of the two models with weights ``mu``."""
+        """(5,) state and (5, 5) covariance of the mixture of the models with weights ``mu``."""
         return _mixture(self.x, self.P, self.mu if mu is None else mu)
 
 
@@ -154,7 +161,7 @@ class TrackedFrame:
         states: (M, 5) filtered (p_x, p_y, v_x, v_y, omega) after this frame's update (the IMM's
             combined estimate).
         covariances: (M, 5, 5) their covariances.
-        turning: (M,) probability of the turning model.
+        turning: (M,) probability of the (sharp) turning model.
     """
 
     ids: np.ndarray
@@ -171,18 +178,41 @@ def _straight(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, P
 
 
+@dataclass(frozen=True)
+class _Model:
+    """One motion model of the IMM: ``straight`` holds omega at 0; ``road`` accelerates mostly along
+    its velocity (:func:`acceleration_covariance`); ``yaw_accel_std`` is its yaw-rate noise."""
+
+    straight: bool
+    road: bool
+    yaw_accel_std: float
+
+
+def _models(config: RadarObjectConfig) -> tuple[list[_Model], np.ndarray]:
+    """The IMM's models (straight, gently turning when ``gentle_turn_yaw_accel_std`` > 0, turning; the
+    turning one last) and their (K, K) switch probabilities per scan, [from, to]."""
+    start, end = config.turn_start_probability, config.turn_end_probability
+    gentle = config.gentle_turn_switch_probability
+    if config.gentle_turn_yaw_accel_std <= 0:
+        return ([_Model(True, True, 0.0), _Model(False, False, config.yaw_accel_std)],
+                np.array([[1.0 - start, start], [end, 1.0 - end]]))
+    return ([_Model(True, True, 0.0), _Model(False, True, config.gentle_turn_yaw_accel_std),
+             _Model(False, False, config.yaw_accel_std)],
+            np.array([[1.0 - start - gentle, gentle, start], [gentle, 1.0 - gentle - start, start],
+                      [end, 0.0, 1.0 - end]]))
+
+
 def _imm_predict(track: _Track, dt: float, config: RadarObjectConfig) -> np.ndarray:
-    """Mix the two models' states (IMM), move each ahead by ``dt`` and return the (2,) predicted model
+    """Mix the models' states (IMM), move each ahead by ``dt`` and return the (K,) predicted model
     probabilities; the track's ``x``, ``P`` hold the predicted per-model states afterwards."""
-    stay = np.array([1.0 - config.turn_start_probability, 1.0 - config.turn_end_probability])
-    switch = np.array([[stay[0], 1.0 - stay[0]], [1.0 - stay[1], stay[1]]])      # [from, to]
+    models, switch = _models(config)
     predicted = track.mu @ switch
     xs, Ps = [], []
-    for j in range(2):
+    for j, model in enumerate(models):
         x, P = track.combined(switch[:, j] * track.mu / max(predicted[j], 1e-300))
-        if j == 0:
+        if model.straight:
             x, P = _straight(x, P)
-        x, P = predict(x, P, dt, config, straight=j == 0)
+        x, P = predict(x, P, dt, config, straight=model.road, yaw_accel_std=model.yaw_accel_std)
         xs.append(x)
         Ps.append(P)
     track.x, track.P = np.array(xs), np.array(Ps)
@@ -190,9 +220,9 @@ def _imm_predict(track: _Track, dt: float, config: RadarObjectConfig) -> np.ndar
 
 
 def _imm_update(track: _Track, predicted: np.ndarray, z: np.ndarray, R: np.ndarray, radar: np.ndarray) -> None:
-    """Update both models with ``z`` (4,), ``R`` (4, 4) and re-weight them by their likelihoods."""
-    log_like = np.zeros(2)
-    for j in range(2):
+    """Update every model with ``z`` (4,), ``R`` (4, 4) and re-weight them by their likelihoods."""
+    log_like = np.zeros(len(track.x))
+    for j in range(len(track.x)):
         expected, H = observe(track.x[j], radar)
         S = H @ track.P[j] @ H.T + R
         y = z - expected
@@ -221,15 +251,18 @@ def _assign(tracks: list[_Track], z: np.ndarray, R: np.ndarray, radar: np.ndarra
 
 
 def _birth(track_id: int, z: np.ndarray, R: np.ndarray, config: RadarObjectConfig) -> _Track:
-    """A new track at measurement ``z`` (4,): not turning, with the configured yaw-rate std, both
-    models at their stationary probabilities."""
+    """A new track at measurement ``z`` (4,): not turning, with the configured yaw-rate std in the
+    turning models, every model at its stationary probability."""
     P = np.zeros((5, 5))
     P[:4, :4] = R
     P[4, 4] = config.yaw_rate_std ** 2
     x = np.concatenate([z, [0.0]])
-    straight = _straight(x, P)
-    rates = np.array([config.turn_end_probability, config.turn_start_probability])
-    return _Track(track_id, np.array([straight[0], x]), np.array([straight[1], P]), rates / rates.sum())
+    models, switch = _models(config)
+    values, vectors = np.linalg.eig(switch.T)
+    stationary = np.abs(np.real(vectors[:, int(np.argmin(np.abs(values - 1.0)))]))
+    states = [_straight(x, P) if model.straight else (x, P) for model in models]
+    return _Track(track_id, np.array([s[0] for s in states]), np.array([s[1] for s in states]),
+                  stationary / stationary.sum())
 
 
 def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], covariances: list[np.ndarray],
@@ -277,7 +310,7 @@ def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], cov
         out.append(TrackedFrame(np.array([tr.id for tr in rows], dtype=np.int64),
                                 np.array([c[0] for c in combined]).reshape(-1, 5),
                                 np.array([c[1] for c in combined]).reshape(-1, 5, 5),
-                                np.array([tr.mu[1] for tr in rows], dtype=np.float64)))
+                                np.array([tr.mu[-1] for tr in rows], dtype=np.float64)))
     return out
 
 
