@@ -21,5 +21,5 @@ def synth_config(preset_name: str, seed: int, traffic: str = "calm", fps: float 
 
 def prepare_config(preset_name: str, items: list[str] = ()) -> PrepareConfig:
     """The preset's PrepareConfig with dotted ``KEY=VALUE`` overrides (``masks.completion.enabled=true``)
-    merged into it field by field (``preset`` replaces a whole nested group)."""
+    merged into it field by field."""
     return from_dict(PrepareConfig, merge(PrepareConfig.PRESETS[preset_name], parse_overrides(list(items))))
