@@ -2,10 +2,13 @@
 IMM tracker separates the object's velocity from its yaw rate (radar/tracking.py)."""
 
 import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from radar4dgs.radar.config import RadarObjectConfig
 from radar4dgs.radar.objects import detect_objects, track_objects
-from radar4dgs.radar.tracking import smooth_tracks, track_detections
+from radar4dgs.radar.tracking import _birth, _models, smooth_tracks, track_detections
 
 J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -136,3 +139,20 @@ def test_smoothing_keeps_a_straight_track_and_its_last_frame():
     assert velocity_errors(smoothed, velocity).max() < 0.2
     # The last detection has no later data: its estimate is the forward one.
     np.testing.assert_array_equal(smoothed[-1].states, forward[-1].states)
+
+
+@given(start=st.floats(0.0, 0.5), end=st.floats(0.0, 1.0), gentle=st.floats(0.0, 0.5), with_gentle=st.booleans())
+def test_a_new_tracks_model_probabilities_are_the_switching_chains_stationary_ones(start, end, gentle, with_gentle):
+    config = RadarObjectConfig(turn_start_probability=start, turn_end_probability=end,
+                               gentle_turn_switch_probability=gentle,
+                               gentle_turn_yaw_accel_std=0.2 if with_gentle else 0.0)
+    models, switch = _models(config)
+    mu = _birth(0, np.zeros(4), np.eye(4), config).mu
+    assert len(mu) == len(models) == (3 if with_gentle else 2)
+    assert mu.sum() == pytest.approx(1.0) and (mu >= 0).all()
+    np.testing.assert_allclose(mu @ switch, mu, atol=1e-9)
+
+
+def test_switch_probabilities_that_do_not_sum_to_one_are_refused():
+    with pytest.raises(ValueError, match="turn_start_probability"):
+        _models(RadarObjectConfig(turn_start_probability=0.6, gentle_turn_switch_probability=0.5))

@@ -194,12 +194,17 @@ def _models(config: RadarObjectConfig) -> tuple[list[_Model], np.ndarray]:
     start, end = config.turn_start_probability, config.turn_end_probability
     gentle = config.gentle_turn_switch_probability
     if config.gentle_turn_yaw_accel_std <= 0:
-        return ([_Model(True, True, 0.0), _Model(False, False, config.yaw_accel_std)],
-                np.array([[1.0 - start, start], [end, 1.0 - end]]))
-    return ([_Model(True, True, 0.0), _Model(False, True, config.gentle_turn_yaw_accel_std),
-             _Model(False, False, config.yaw_accel_std)],
-            np.array([[1.0 - start - gentle, gentle, start], [gentle, 1.0 - gentle - start, start],
-                      [end, 0.0, 1.0 - end]]))
+        models = [_Model(True, True, 0.0), _Model(False, False, config.yaw_accel_std)]
+        switch = np.array([[1.0 - start, start], [end, 1.0 - end]])
+    else:
+        models = [_Model(True, True, 0.0), _Model(False, True, config.gentle_turn_yaw_accel_std),
+                  _Model(False, False, config.yaw_accel_std)]
+        switch = np.array([[1.0 - start - gentle, gentle, start], [gentle, 1.0 - gentle - start, start],
+                           [end, 0.0, 1.0 - end]])
+    if (switch < 0).any():
+        raise ValueError("RadarObjectConfig: turn_start_probability + gentle_turn_switch_probability and "
+                         "turn_end_probability must each be at most 1 (they are per-scan probabilities)")
+    return models, switch
 
 
 def _imm_predict(track: _Track, dt: float, config: RadarObjectConfig) -> np.ndarray:
