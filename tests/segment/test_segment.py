@@ -392,3 +392,18 @@ def test_baseline_drops_isolated_seeds_and_leaks():
     lone = radar_at_pixels(np.array([[31.2, 22.2]]), 10.0, np.array([True]))
     assert not baseline_frame(image, None, lone, K, BaselineConfig(max_area_m2=100.0)).any()  # no support
     assert not baseline_frame(image, None, lone, K, BaselineConfig(min_support=0, max_area_m2=1.0)).any()  # too big
+
+
+def test_shipped_weights_load_by_name_and_an_unknown_name_is_refused(tmp_path, monkeypatch):
+    from radar4dgs.segment.infer import load_model, shipped_weight_names
+
+    assert {"segnet-small", "segnet-small-traffic"} <= set(shipped_weight_names())
+    monkeypatch.chdir(tmp_path)             # a name, not a file of the working folder
+    default, traffic = load_model(), load_model("segnet-small-traffic")
+    assert default.config == traffic.config
+    # Different weights: the traffic network was trained anew, not copied.
+    first = next(iter(default.state_dict()))
+    assert not torch.equal(default.state_dict()[first], traffic.state_dict()[first])
+    torch.testing.assert_close(load_model("segnet-small").state_dict()[first], default.state_dict()[first])
+    with pytest.raises(FileNotFoundError, match="segnet-small-traffic"):
+        load_model("segnet-huge")

@@ -64,7 +64,9 @@ class SegInferConfig:
     """How ``prepare`` turns radar and images into dynamic masks."""
 
     method: Literal["model", "baseline"] = "model"  # the learned network, or the non-learned radar-prompted flood fill
-    checkpoint: Path | None = None  # network checkpoint (seg-train's best.pt); None = the one shipped in the package
+    # network checkpoint: seg-train's best.pt, or the name of weights shipped in the package:
+    # segnet-small (the default, None) or segnet-small-traffic (also trained on realistic and rush traffic)
+    checkpoint: Path | None = None
     threshold: float = 0.5  # tau: a pixel is dynamic when its pasted probability exceeds this
     # Anchors and patch size depart from the paper (8 random anchors, 256 px patches at 1920 px):
     # a frame has 30-140 dynamic radar points, mostly on the nearest car, so 8 random anchors

@@ -64,20 +64,34 @@ class FrameSegmentation:
         return self.prob > threshold
 
 
-def default_checkpoint_bytes() -> bytes:
-    """The shipped checkpoint's bytes (``importlib.resources``)."""
-    resource = importlib.resources.files("radar4dgs.segment").joinpath("weights", DEFAULT_WEIGHTS)
+def shipped_weight_names() -> list[str]:
+    """Names of the weights shipped in the package (``segnet-small``, ``segnet-small-traffic``)."""
+    folder = importlib.resources.files("radar4dgs.segment").joinpath("weights")
+    return sorted(entry.name[:-3] for entry in folder.iterdir() if entry.name.endswith(".pt"))
+
+
+def default_checkpoint_bytes(name: str = DEFAULT_WEIGHTS) -> bytes:
+    """The bytes of shipped weights ``name`` (``importlib.resources``; the default ones unless named)."""
+    resource = importlib.resources.files("radar4dgs.segment").joinpath("weights", name)
     if not resource.is_file():
-        raise FileNotFoundError(f"the package ships no segmentation weights ({DEFAULT_WEIGHTS}); "
-                                f"train one with `radar4dgs seg-train` and pass its best.pt")
+        raise FileNotFoundError(f"the package ships no segmentation weights {name} (it ships "
+                                f"{', '.join(shipped_weight_names()) or 'none'}); train one with "
+                                f"`radar4dgs seg-train` and pass its best.pt")
     return resource.read_bytes()
 
 
-def load_model(checkpoint: Path | None = None, device: torch.device | str = "cpu",
+def load_model(checkpoint: Path | str | None = None, device: torch.device | str = "cpu",
                dtype: torch.dtype = torch.float32) -> RadarCameraSegNet:
-    """The network of ``checkpoint`` (a seg-train checkpoint), or of the shipped weights when None."""
+    """The network of ``checkpoint``: a seg-train checkpoint file, the name of weights shipped in
+    the package (:func:`shipped_weight_names`), or the default shipped weights when None."""
     if checkpoint is None:
         payload = torch.load(io.BytesIO(default_checkpoint_bytes()), map_location="cpu", weights_only=True)
+    elif not Path(checkpoint).exists() and str(checkpoint) in shipped_weight_names():
+        payload = torch.load(io.BytesIO(default_checkpoint_bytes(f"{checkpoint}.pt")), map_location="cpu",
+                             weights_only=True)
+    elif not Path(checkpoint).is_file():
+        raise FileNotFoundError(f"{checkpoint}: no such segmentation checkpoint, and not the name of shipped "
+                                f"weights ({', '.join(shipped_weight_names())})")
     else:
         payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
     return model_from_checkpoint(payload, device, dtype)
