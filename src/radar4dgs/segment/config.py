@@ -64,8 +64,8 @@ class SegInferConfig:
     """How ``prepare`` turns radar and images into dynamic masks."""
 
     method: Literal["model", "baseline"] = "model"  # the learned network, or the non-learned radar-prompted flood fill
-    # network checkpoint: seg-train's best.pt, or the name of weights shipped in the package:
-    # segnet-small (the default, None) or segnet-small-traffic (also trained on realistic and rush traffic)
+    # network checkpoint: seg-train's best.pt, or the name of weights shipped in the package, segnet-small
+    # or segnet-small-traffic (also trained on realistic and rush traffic); None = segnet-small
     checkpoint: Path | None = None
     threshold: float = 0.5  # tau: a pixel is dynamic when its pasted probability exceeds this
     # Anchors and patch size depart from the paper (8 random anchors, 256 px patches at 1920 px):
