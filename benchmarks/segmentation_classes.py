@@ -81,7 +81,8 @@ def main() -> None:
     args = parser.parse_args()
     config = SegInferConfig(checkpoint=None if args.checkpoint is None else Path(args.checkpoint),
                             threshold=args.threshold)
-    report, total = {"checkpoint": args.checkpoint, "threshold": args.threshold, "scenes": {}}, None
+    report = {"checkpoint": args.checkpoint, "threshold": args.threshold, "scenes": {}}
+    total = {"truth": 0, "predicted": 0, "both": 0, "classes": {}}
     for folder in args.scenes:
         scene = read_scene(folder)
         out = args.work / f"{folder.name}-{args.label}"
@@ -90,8 +91,6 @@ def main() -> None:
         counts = score_scene(scene, [read_mask_png(out / f"{f.name}.png") for f in scene.frames])
         report["scenes"][folder.name] = {**counts, **rates(counts)}
         print(folder.name, args.label, json.dumps(rates(counts)), flush=True)
-        if total is None:
-            total = {"truth": 0, "predicted": 0, "both": 0, "classes": {}}
         for key in ("truth", "predicted", "both"):
             total[key] += counts[key]
         for name, (pixels, found) in counts["classes"].items():
