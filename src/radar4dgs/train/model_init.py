@@ -14,7 +14,9 @@ from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.model.gaussians import GaussianSet, to_canonical
 from radar4dgs.model.motion_models import OffsetField
+from radar4dgs.train.config import FitConfig
 from radar4dgs.train.data import MotionTargets
+from radar4dgs.train.fit_motion import fit_field
 
 
 def scene_extent(scene: Scene) -> float:
@@ -26,9 +28,13 @@ def scene_extent(scene: Scene) -> float:
 
 
 def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points: np.ndarray,
-              device: torch.device, dtype: torch.dtype) -> DeformationField:
+              device: torch.device, dtype: torch.dtype, progress: bool = False) -> DeformationField:
     """A fresh field (seeded), normalised to the region of its supervision (or of the dynamic
-    points when there is none)."""
+    points when there is none); with ``optim.field_prefit_iterations`` > 0 and supervision, fitted
+    to it first (:func:`prefit_field`)."""
+    if config.optim.field_prefit_iterations > 0 and motion is not None and (motion.flow is not None
+                                                                           or motion.radar is not None):
+        return prefit_field(config, motion, device, dtype, progress)
     torch.manual_seed(config.seed)
     deformation = DeformationField(config.field).to(device=device, dtype=dtype)
     region = []
@@ -38,6 +44,23 @@ def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points
         region.append(motion.radar.x)
     deformation.fit_normalization(np.concatenate(region) if region else fallback_points)
     return deformation
+
+
+def prefit_field(config: TrainConfig, motion: MotionTargets, device: torch.device, dtype: torch.dtype,
+                 progress: bool = False) -> DeformationField:
+    """A field fitted alone to ``motion`` for ``optim.field_prefit_iterations`` iterations (the
+    standalone fit, :func:`radar4dgs.train.fit_motion.fit_field`, with the run's seed, motion batch
+    and the losses' relative weights of L_rad and L_vel), in training mode."""
+    losses = config.losses
+    fit = FitConfig(iterations=config.optim.field_prefit_iterations, batch_size=losses.motion_batch,
+                    radar_weight=losses.radar_weight / max(losses.flow_weight, 1e-12),
+                    velocity_weight=losses.velocity_weight / max(losses.flow_weight, 1e-12),
+                    velocity_position_std=motion.velocity_position_std, velocity_huber=motion.velocity_huber,
+                    seed=config.seed, threads=0, device=str(device),
+                    dtype="float64" if dtype == torch.float64 else "float32")
+    velocity = motion.velocity if losses.velocity_weight > 0 else None
+    deformation, _ = fit_field(motion.flow, motion.radar, config.field, fit, progress, velocity=velocity)
+    return deformation.train()
 
 
 def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:

@@ -202,7 +202,7 @@ class Trainer:
         deformation, dynamic, offsets = None, None, None
         stats = {"static": GradientStats(len(static), device)}
         if method == "ours":
-            deformation = new_field(config, self.motion, points["points"][dyn], device, dtype)
+            deformation = new_field(config, self.motion, points["points"][dyn], device, dtype, self.progress)
         elif method == "deformable":
             offsets = offset_field(config, points["points"], device, dtype)
         elif method == "bspline":
