@@ -299,6 +299,8 @@ class OptimConfig:
     # iterations; 0 = off. Stage 1 trains the field for only stage2_start x iterations at field_lr
     # (150 at the bench grid's 600), and stage 2 places the dynamic Gaussians with that field: on the
     # hard tuning seeds its scene-flow error was 0.10-0.61 m there, 0.06-0.18 m after a full fit.
+    # 1000 raised novel-view PSNR* on rush 5 Hz tuning seeds 214 / 218 (+0.27 / +0.36 dB at the
+    # bench grid) but lowered it on report seed 209 (-0.34 dB), so it is not on by itself.
     field_prefit_iterations: int = 0
     # Sky environment map (colour logits).
     sky_lr: float = 1e-2
