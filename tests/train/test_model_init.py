@@ -84,3 +84,13 @@ def test_prefit_field_learns_the_flow_and_a_fresh_one_moves_nothing(one_torch_th
     again = new_field(config, motion, motion.flow.x_i, torch.device("cpu"), torch.float64)
     pairs = zip(fitted.state_dict().values(), again.state_dict().values(), strict=True)
     assert all(torch.equal(a, b) for a, b in pairs)
+
+
+def test_prefit_leaves_out_the_terms_the_run_does_not_weight(one_torch_thread):
+    """ours-no-flow turns L_flow off by its weight: the pre-fit must not learn the flow either, and
+    with no weighted term left the run starts from the fresh (identity) field."""
+    motion = _translating_cloud()
+    config = preset(TrainConfig, "tiny", optim={"field_prefit_iterations": 200}, losses={"flow_weight": 0.0})
+    field = new_field(config, motion, motion.flow.x_i, torch.device("cpu"), torch.float64)
+    x = torch.as_tensor(motion.flow.x_i[:50])
+    assert torch.allclose(field.displacement(x, 0.2, 0.6), torch.zeros_like(x))

@@ -32,9 +32,9 @@ def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points
     """A fresh field (seeded), normalised to the region of its supervision (or of the dynamic
     points when there is none); with ``optim.field_prefit_iterations`` > 0 and supervision, fitted
     to it first (:func:`prefit_field`)."""
-    if config.optim.field_prefit_iterations > 0 and motion is not None and (motion.flow is not None
-                                                                           or motion.radar is not None):
-        return prefit_field(config, motion, device, dtype, progress)
+    fitted = prefit_field(config, motion, device, dtype, progress) if motion is not None else None
+    if fitted is not None:
+        return fitted
     torch.manual_seed(config.seed)
     deformation = DeformationField(config.field).to(device=device, dtype=dtype)
     region = []
@@ -47,19 +47,26 @@ def new_field(config: TrainConfig, motion: MotionTargets | None, fallback_points
 
 
 def prefit_field(config: TrainConfig, motion: MotionTargets, device: torch.device, dtype: torch.dtype,
-                 progress: bool = False) -> DeformationField:
+                 progress: bool = False) -> DeformationField | None:
     """A field fitted alone to ``motion`` for ``optim.field_prefit_iterations`` iterations (the
-    standalone fit, :func:`radar4dgs.train.fit_motion.fit_field`, with the run's seed, motion batch
-    and the losses' relative weights of L_rad and L_vel), in training mode."""
+    standalone fit, :func:`radar4dgs.train.fit_motion.fit_field`, with the run's seed and motion
+    batch), in training mode; None when that is 0 or no term the run weights has samples.
+
+    Only the terms the run trains the field with take part (the ablations turn a term off by its
+    weight), weighted relative to ``L_flow`` as in training."""
     losses = config.losses
+    flow = motion.flow if losses.flow_weight > 0 else None
+    radar = motion.radar if losses.radar_weight > 0 else None
+    velocity = motion.velocity if losses.velocity_weight > 0 else None
+    if config.optim.field_prefit_iterations <= 0 or (flow is None and radar is None and velocity is None):
+        return None
+    scale = losses.flow_weight if flow is not None else 1.0  # fit_field weighs L_flow by 1
     fit = FitConfig(iterations=config.optim.field_prefit_iterations, batch_size=losses.motion_batch,
-                    radar_weight=losses.radar_weight / max(losses.flow_weight, 1e-12),
-                    velocity_weight=losses.velocity_weight / max(losses.flow_weight, 1e-12),
+                    radar_weight=losses.radar_weight / scale, velocity_weight=losses.velocity_weight / scale,
                     velocity_position_std=motion.velocity_position_std, velocity_huber=motion.velocity_huber,
                     seed=config.seed, threads=0, device=str(device),
                     dtype="float64" if dtype == torch.float64 else "float32")
-    velocity = motion.velocity if losses.velocity_weight > 0 else None
-    deformation, _ = fit_field(motion.flow, motion.radar, config.field, fit, progress, velocity=velocity)
+    deformation, _ = fit_field(flow, radar, config.field, fit, progress, velocity=velocity)
     return deformation.train()
 
 
