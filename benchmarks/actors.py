@@ -87,29 +87,70 @@ def psnr(squared_error: float, count: int) -> float | None:
     return None if count == 0 else float(10 * np.log10(1.0 / max(squared_error / count, 1e-12)))
 
 
+def truly_unseen(run, index: int, mask: np.ndarray, truth_views: list) -> np.ndarray:
+    """(H, W) bool: the pixels of ``mask`` in test frame ``index`` whose background surface (the
+    generator's depth of the scene without its movers) no training frame saw, by the generator's depth of
+    those frames (movers included, so a mover in front hides it) at a tight tolerance: the truth the
+    never-observed mask is scored against."""
+    from radar4dgs.actors.background import backproject, seen_in
+    from radar4dgs.datasets.synth.background import background_frame, scene_config
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.view import frame_view
+
+    view = frame_view(run.scene, index, 1.0, normalized_times(run.scene))
+    depth = background_frame(scene_config(run.scene.root), index).depth.astype(np.float64)
+    pixels = np.argwhere(mask & np.isfinite(depth))
+    points = backproject(depth, np.asarray(view.K), np.asarray(view.world_to_camera), pixels)
+    seen = np.zeros(len(pixels), dtype=bool)
+    for training in truth_views:
+        seen |= seen_in(points, training, tolerance=(0.05, 0.3))
+    unseen = np.zeros_like(mask)
+    unseen[pixels[~seen, 0], pixels[~seen, 1]] = True
+    return unseen
+
+
+def ground_truth_visibility(run) -> list:
+    """The training frames as the generator saw them: its depth (movers included), nothing dynamic."""
+    from radar4dgs.actors.background import TrainingView
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.view import frame_view
+
+    times, out = normalized_times(run.scene), []
+    for j in run.scene.train_indices:
+        view = frame_view(run.scene, j, 1.0, times)
+        depth = run.scene.load_optional("gt/depth", j).astype(np.float64)
+        out.append(TrainingView(np.asarray(view.world_to_camera), np.asarray(view.K), depth, np.zeros_like(depth)))
+    return out
+
+
 def background_scores(run, actors) -> dict:
     """PSNR over the test frames' moving-object pixels: every actor removed vs the background render,
-    the unedited render vs it; the fraction of those pixels marked never observed."""
+    the unedited render vs it, and what `radar4dgs render --remove-actors all` writes (the never-observed
+    pixels filled); the fraction of those pixels marked never observed, and how that mask agrees with the
+    truth."""
+    import cv2
     import torch
 
     from radar4dgs.actors.background import never_observed_mask, training_visibility
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import ActorEdits
+    from radar4dgs.apps.render import Unobserved
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR
+    from radar4dgs.evaluate.reconstruction import to_uint8
     from radar4dgs.io.scene import normalized_times
     from radar4dgs.model.view import frame_view
 
     scene, times = run.scene, normalized_times(run.scene)
     removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
     visibility = training_visibility(run, scale=1.0)
-    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0, "elsewhere": 0.0}
-    count = never = elsewhere = 0
+    rendered_fill = Unobserved.of(run, run.model, fill=True)
+    truth_views = ground_truth_visibility(run)
+    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0, "elsewhere": 0.0, "filled": 0.0}
+    count = never = elsewhere = unseen_count = both = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
         if not mask.any():
             continue
-        import cv2
-
         background = cv2.cvtColor(cv2.imread(str(scene.root / BACKGROUND_DIR / f"{scene.frames[i].name}.png")),
                                   cv2.COLOR_BGR2RGB).astype(np.float64) / 255
         view = frame_view(scene, i, 1.0, times)
@@ -122,15 +163,27 @@ def background_scores(run, actors) -> dict:
         count += int(mask.sum())
         unseen = never_observed_mask(run, view, mask, visibility)
         never += int(unseen.sum())
+        truth = truly_unseen(run, i, mask, truth_views)
+        unseen_count += int(truth.sum())
+        both += int((truth & unseen).sum())
         rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
         sums["observed"] += float(((rgb - background)[mask & ~unseen] ** 2).sum() / 3)
         # The same static layer where nothing moves, against the recorded frame: its quality elsewhere.
         sums["elsewhere"] += float(((rgb - background)[~mask] ** 2).sum() / 3)
         elsewhere += int((~mask).sum())
+        fill = rendered_fill.mask(run, view, edited)
+        written = to_uint8(edited["rgb"])
+        if fill.any():
+            written = cv2.inpaint(written, fill.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+        sums["filled"] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
     return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
+            "psnr_removed_filled": psnr(sums["filled"], count),
             "psnr_removed_observed": psnr(sums["observed"], count - never),
             "psnr_static_elsewhere": psnr(sums["elsewhere"], elsewhere),
-            "pixels": count, "never_observed_fraction": never / count if count else None}
+            "pixels": count, "never_observed_fraction": never / count if count else None,
+            "never_observed_truth": unseen_count / count if count else None,
+            "never_observed_precision": both / never if never else None,
+            "never_observed_recall": both / unseen_count if unseen_count else None}
 
 
 def score_run(run_dir: Path) -> dict:
@@ -197,7 +250,8 @@ def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float],
 def summary(rows: list[dict]) -> dict:
     """Means over scenes of the headline numbers (None entries skipped)."""
     keys = ("recall", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
-            "psnr_kept", "gain_db", "psnr_removed_observed", "psnr_static_elsewhere", "never_observed_fraction",
+            "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed", "psnr_static_elsewhere",
+            "never_observed_fraction", "never_observed_truth", "never_observed_precision", "never_observed_recall",
             "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}
     for key in keys:

@@ -37,3 +37,12 @@ def test_a_point_is_seen_unless_outside_occluded_or_under_a_dynamic_object():
     covered[40, 20] = 0.9  # a car over that pixel in this training frame
     assert not seen_in(point, TrainingView(W2C, K, depth, covered)).any()
     assert not seen_in(point + np.array([-10.0, 0, 0]), view).any()  # behind the camera
+
+
+def test_the_default_tolerance_accepts_a_rough_static_surface_that_a_tight_one_rejects():
+    # A short training's static depths are off by 10-30 %: the same surface all the same.
+    depth = ground_depth()
+    point = backproject(depth, K, W2C, np.array([[40, 20]]))
+    rough = TrainingView(W2C, K, depth * 1.15, np.zeros_like(depth))
+    assert seen_in(point, rough).all()
+    assert not seen_in(point, rough, tolerance=(0.05, 0.3)).any()

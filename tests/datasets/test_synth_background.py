@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from radar4dgs.cli import main
-from radar4dgs.datasets.synth.background import render_background, scene_config
+from radar4dgs.datasets.synth.background import background_frame, render_background, scene_config
 
 
 def test_background_differs_from_the_frame_exactly_where_movers_were(motion_scene):
@@ -17,6 +17,19 @@ def test_background_differs_from_the_frame_exactly_where_movers_were(motion_scen
         changed = np.any(background != motion_scene.load_image(index), axis=-1)
         # Same camera-noise stream: every pixel no mover covers is the recorded pixel, bit for bit.
         assert moving.any() and np.array_equal(changed, moving)
+
+
+def test_background_depth_lies_behind_the_movers_and_equals_the_frame_elsewhere(motion_scene):
+    config = scene_config(motion_scene.root)
+    index = len(motion_scene) // 2
+    frame = background_frame(config, index)
+    depth = motion_scene.load_optional("gt/depth", index)
+    moving = motion_scene.load_optional("gt/dynamic_mask", index) > 0
+    finite = np.isfinite(frame.depth) & np.isfinite(depth)
+    # What a mover hid is farther than the mover; where nothing moved the surface is the same one.
+    assert moving.any() and (frame.depth[moving & finite] > depth[moving & finite]).all()
+    assert np.allclose(frame.depth[~moving & finite], depth[~moving & finite], rtol=1e-4)
+    assert np.array_equal(frame.image, render_background(config, index))
 
 
 def test_synth_background_flag_writes_every_frame(tmp_path, capsys):

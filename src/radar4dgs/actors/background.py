@@ -14,8 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Relative and absolute depth tolerance (fraction of the depth, metres) for "the same surface".
-DEPTH_TOLERANCE = (0.05, 0.3)
+# Relative and absolute depth tolerance (fraction of the depth, metres) for "the same surface". Wide,
+# because the test compares the static layer's own depths, and a short training's static geometry is
+# rough: on the hard tuning seeds 214 / 218 (600 iterations) 23 % of its depths near movers are within
+# 10 % of the truth. At (0.05, 0.3 m) the mask marked 22 % / 47 % of the pixels under removed movers
+# where the generator's geometry says 10 % / 2.6 % were never seen; (0.2, 1 m) marks 15 % / 14 % and
+# has the best agreement with the truth (F1 0.64 / 0.21; 0.52 / 0.10 before, 0.64 / 0.20 at (0.3, 1.5 m)).
+DEPTH_TOLERANCE = (0.2, 1.0)
 STATIC_ALPHA = 0.5
 DYNAMIC_WEIGHT = 0.5
 
@@ -62,8 +67,11 @@ def backproject(depth: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, p
     return (cam - t) @ R
 
 
-def seen_in(points: np.ndarray, view: TrainingView) -> np.ndarray:
-    """(P,) bool: world ``points`` (P, 3) visible, unoccluded, in the training ``view``."""
+def seen_in(points: np.ndarray, view: TrainingView, tolerance: tuple[float, float] | None = None) -> np.ndarray:
+    """(P,) bool: world ``points`` (P, 3) visible, unoccluded, in the training ``view``: inside its image,
+    at its depth there within ``tolerance`` (relative, metres; ``DEPTH_TOLERANCE`` when None) and not under a
+    dynamic object."""
+    relative, absolute = DEPTH_TOLERANCE if tolerance is None else tolerance
     cam = points @ view.world_to_camera[:3, :3].T + view.world_to_camera[:3, 3]
     z = cam[:, 2]
     height, width = view.depth.shape
@@ -74,7 +82,7 @@ def seen_in(points: np.ndarray, view: TrainingView) -> np.ndarray:
     seen = np.zeros(len(points), dtype=bool)
     ui, vi, zi = u[inside], v[inside], z[inside]
     there = view.depth[vi, ui]
-    same = np.abs(there - zi) <= DEPTH_TOLERANCE[0] * zi + DEPTH_TOLERANCE[1]
+    same = np.abs(there - zi) <= relative * zi + absolute
     seen[np.flatnonzero(inside)] = same & (view.dynamic[vi, ui] < DYNAMIC_WEIGHT)
     return seen
 

@@ -43,18 +43,23 @@ def scene_config(scene_dir: str | Path) -> SynthConfig:
     return from_dict(SynthConfig, record, partial=True)
 
 
-def render_background(config: SynthConfig, index: int) -> np.ndarray:
-    """(H, W, 3) uint8 frame ``index`` of the scene ``config`` makes, without its moving objects: the
-    frame's own camera-noise stream, so pixels that no mover covers equal the recorded image."""
+def background_frame(config: SynthConfig, index: int) -> C.CameraFrame:
+    """Frame ``index`` of the scene ``config`` makes, without its moving objects: image (H, W, 3) uint8
+    and z-depth (H, W) (+inf for sky), with the frame's own camera-noise stream, so pixels that no mover
+    covers equal the recorded image."""
     from radar4dgs.datasets.synth.generate import _CAMERA
 
     dt = 1.0 / config.fps
     times = np.arange(config.num_frames) * dt
     world = background_world(build_world(config), times)
     K = C.intrinsics(config)
-    view = C.render(world, config, K, C.cam_to_ego(config), C.pixel_rays(K, config.width, config.height),
+    return C.render(world, config, K, C.cam_to_ego(config), C.pixel_rays(K, config.width, config.height),
                     float(times[index]), dt, np.random.default_rng([config.seed, _CAMERA, index]))
-    return view.image
+
+
+def render_background(config: SynthConfig, index: int) -> np.ndarray:
+    """(H, W, 3) uint8 image of :func:`background_frame`."""
+    return background_frame(config, index).image
 
 
 def write_backgrounds(scene_dir: str | Path, indices=None) -> Path:
