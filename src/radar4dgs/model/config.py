@@ -299,9 +299,8 @@ class OptimConfig:
     # iterations; 0 = off. Stage 1 trains the field for only stage2_start x iterations at field_lr
     # (150 at the bench grid's 600), and stage 2 places the dynamic Gaussians with that field: on the
     # hard tuning seeds its scene-flow error was 0.10-0.61 m there, 0.06-0.18 m after a full fit.
-    # The small preset pre-fits for 1000: at the bench grid it raised novel-view PSNR* on the rush
-    # 5 Hz report seeds by 0.52 dB on average (-0.34 to +1.33 per seed) and moved calm seeds 1 / 2 by
-    # +0.58 / -0.19 dB. tiny (a smoke test) and paper (whose stage 1 is long) keep it off.
+    # small pre-fits 1000 (bench grid: PSNR* +0.52 dB on the rush 5 Hz report seeds, calm seeds 1 / 2
+    # +0.58 / -0.19 dB); tiny (a smoke test) and paper (whose stage 1 is long) keep it off.
     field_prefit_iterations: int = 0
     # Sky environment map (colour logits).
     sky_lr: float = 1e-2
