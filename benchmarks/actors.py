@@ -87,23 +87,23 @@ def psnr(squared_error: float, count: int) -> float | None:
     return None if count == 0 else float(10 * np.log10(1.0 / max(squared_error / count, 1e-12)))
 
 
-def truly_unseen(run, index: int, mask: np.ndarray, truth_views: list) -> np.ndarray:
-    """(H, W) bool: the pixels of ``mask`` in test frame ``index`` whose background surface (the
-    generator's depth of the scene without its movers) no training frame saw, by the generator's depth of
-    those frames (movers included, so a mover in front hides it) at a tight tolerance: the truth the
-    never-observed mask is scored against."""
-    from radar4dgs.actors.background import backproject, seen_in
-    from radar4dgs.datasets.synth.background import background_frame, scene_config
-    from radar4dgs.io.scene import normalized_times
-    from radar4dgs.model.view import frame_view
+# "The same surface" for the generator's exact depths: a mismatch beyond this is an occlusion.
+EXACT_DEPTH_TOLERANCE = (0.05, 0.3)
 
-    view = frame_view(run.scene, index, 1.0, normalized_times(run.scene))
-    depth = background_frame(scene_config(run.scene.root), index).depth.astype(np.float64)
+
+def truly_unseen(view, background_depth: np.ndarray, mask: np.ndarray, truth_views: list) -> np.ndarray:
+    """(H, W) bool: the pixels of ``mask`` in the test ``view`` whose background surface
+    (``background_depth`` (H, W), the generator's z-depth of the scene without its movers) no training
+    frame saw, by the generator's depth of those frames (movers included, so a mover in front hides
+    it): the truth the never-observed mask is scored against."""
+    from radar4dgs.actors.background import backproject, seen_in
+
+    depth = background_depth.astype(np.float64)
     pixels = np.argwhere(mask & np.isfinite(depth))
     points = backproject(depth, np.asarray(view.K), np.asarray(view.world_to_camera), pixels)
     seen = np.zeros(len(pixels), dtype=bool)
     for training in truth_views:
-        seen |= seen_in(points, training, tolerance=(0.05, 0.3))
+        seen |= seen_in(points, training, tolerance=EXACT_DEPTH_TOLERANCE)
     unseen = np.zeros_like(mask)
     unseen[pixels[~seen, 0], pixels[~seen, 1]] = True
     return unseen
@@ -135,7 +135,7 @@ def background_scores(run, actors) -> dict:
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import ActorEdits
     from radar4dgs.apps.render import Unobserved
-    from radar4dgs.datasets.synth.background import BACKGROUND_DIR
+    from radar4dgs.datasets.synth.background import BACKGROUND_DIR, background_frame, scene_config
     from radar4dgs.evaluate.reconstruction import to_uint8
     from radar4dgs.io.scene import normalized_times
     from radar4dgs.model.view import frame_view
@@ -145,6 +145,7 @@ def background_scores(run, actors) -> dict:
     visibility = training_visibility(run, scale=1.0)
     rendered_fill = Unobserved.of(run, run.model, fill=True)
     truth_views = ground_truth_visibility(run)
+    generator = scene_config(scene.root)
     sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0, "elsewhere": 0.0, "filled": 0.0}
     count = never = elsewhere = unseen_count = both = 0
     for i in scene.test_indices:
@@ -163,7 +164,7 @@ def background_scores(run, actors) -> dict:
         count += int(mask.sum())
         unseen = never_observed_mask(run, view, mask, visibility)
         never += int(unseen.sum())
-        truth = truly_unseen(run, i, mask, truth_views)
+        truth = truly_unseen(view, background_frame(generator, i).depth, mask, truth_views)
         unseen_count += int(truth.sum())
         both += int((truth & unseen).sum())
         rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
