@@ -26,6 +26,7 @@ object velocity are scored (minutes instead of ~6 per seed; written to <name>-fr
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -176,9 +177,7 @@ def main() -> None:
         motion = dynamic_motion_statistics(scene)
         print(f"seed {seed} dynamic pixels move p50 {motion['p50']} / p90 {motion['p90']} / p99 {motion['p99']} "
               "px per frame", flush=True)
-        config = preset(MotionConfig, args.preset, flow={"depth_source": info["depth_source"],
-                                                         "mask_source": info["mask_source"]},
-                        fit={"radar_source": info["radar_source"]})
+        config = motion_config(args, info)
         flow_summary = prepare_flow(scene, prepared, config.flow)
         objects, _ = object_velocity_metrics(scene, prepared)
         objects.update(object_velocity_breakdown(scene, prepared, config.fit.velocity_max_std))
@@ -260,6 +259,15 @@ def object_velocity_breakdown(scene, prepared: Path, max_std: float) -> dict:
     return {"trusted": trusted, "failures": {k: {"objects": v[0], "above_0.5": v[1]} for k, v in failures.items()}}
 
 
+def motion_config(args: argparse.Namespace, info: dict) -> MotionConfig:
+    """The preset's MotionConfig with the sources of ``info`` and the flow section of the PrepareConfig
+    that ``--prepare-set`` makes, so that ``flow.*`` overrides reach the flow this benchmark computes."""
+    flow = dataclasses.replace(prepare_config(args.preset, args.prepare_set).flow, depth_source=info["depth_source"],
+                               mask_source=info["mask_source"])
+    return dataclasses.replace(preset(MotionConfig, args.preset, fit={"radar_source": info["radar_source"]}),
+                               flow=flow)
+
+
 def run_frontend(args: argparse.Namespace, report: dict) -> None:
     """--frontend-only: per seed, the image motion, the flow stage's 2-D and scene-flow errors and the
     radar objects' velocity errors; no field is fitted."""
@@ -269,8 +277,7 @@ def run_frontend(args: argparse.Namespace, report: dict) -> None:
         scene_dir, prepared, info = prepare_scene(seed, args.preset, args.work, args.oracle, args.traffic, args.fps,
                                                   args.prepare_set)
         scene = read_scene(scene_dir)
-        config = preset(MotionConfig, args.preset, flow={"depth_source": info["depth_source"],
-                                                         "mask_source": info["mask_source"]})
+        config = motion_config(args, info)
         flow_summary = prepare_flow(scene, prepared, config.flow)
         objects, _ = object_velocity_metrics(scene, prepared)
         objects.update(object_velocity_breakdown(scene, prepared, config.fit.velocity_max_std))

@@ -45,6 +45,28 @@ def test_object_translation_refuses_a_best_shift_on_the_window_border():
     assert shift == pytest.approx([10.0, 0.0], abs=0.2)
 
 
+def test_object_translation_searches_wide_when_the_window_is_too_small():
+    # The smooth blob moved 30 px: beyond a 6 px window around 0, within a 40 px wide search.
+    v, u = np.mgrid[0:90, 0:200]
+    a = (20 + 210 * np.exp(-((u - 80.0) ** 2 + (v - 45.0) ** 2) / (2 * 30.0 ** 2))).astype(np.uint8)
+    b = shifted(a, 30.0, -3.0)
+    rows, cols = np.mgrid[30:60, 50:110]
+    pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
+    assert object_translation(a, b, pixels, np.zeros(2), search=6, wide_search=20) is None  # still too narrow
+    shift, error = object_translation(a, b, pixels, np.zeros(2), search=6, wide_search=40)
+    assert shift == pytest.approx([30.0, -3.0], abs=0.2)
+    assert error < 2.0
+
+
+@pytest.mark.parametrize("motion", [-31, 17, 26])
+def test_rigid_object_flow_searches_wide_for_a_fast_object(motion):
+    a, b, mask = bar_scene(motion=motion)
+    dense = np.zeros((*mask.shape, 2), dtype=np.float32)  # a dense flow stuck to the background
+    assert np.array_equal(rigid_object_flow(a, b, dense, mask), dense)  # one 12 px window: nothing found
+    fixed = rigid_object_flow(a, b, dense, mask, wide_search=40)
+    assert fixed[mask] == pytest.approx(np.tile([float(motion), 0.0], (int(mask.sum()), 1)), abs=0.2)
+
+
 def bar_scene(motion: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A uniformly coloured bar (12 x 60 px, texture only at its two ends) moving ``motion`` px to
     the right over a textured static background: grey images a and b and the bar's mask in a."""

@@ -75,6 +75,11 @@ class FlowConfig:
     rigid_accept: float = 0.9
     # Components smaller than this (px) keep their dense flow (too little to match reliably).
     rigid_min_pixels: int = 10
+    # When the best translation lies on the border of the +-rigid_search window, a coarse search over
+    # +-rigid_wide_search px (every second shift, blurred images) re-centres the window; 0 = off. An
+    # object too fast for the window and without a radar object to predict it (a cyclist crossing at
+    # 27 px a frame at 5 Hz) otherwise keeps a dense flow stuck to the background.
+    rigid_wide_search: int = 0
     # Radar-guided matching of large motions (DESIGN.md "Realistic motion", motion/objects_flow.py):
     # a component that a radar object's returns land on also gets the radar prediction (its
     # pixels' 3D points moved by the object's velocity x dt and projected into frame j: ego motion,

@@ -156,7 +156,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         backward, _, _ = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
                                      PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config)
     elif config.rigid_objects:
-        rigid = (config.rigid_search, config.rigid_accept, config.rigid_min_pixels)
+        rigid = (config.rigid_search, config.rigid_accept, config.rigid_min_pixels, config.rigid_wide_search)
         forward = rigid_object_flow(gray_i, gray_j, forward, mask_i, *rigid)
         backward = rigid_object_flow(gray_j, gray_i, backward, mask_j, *rigid)
     consistent = consistency_mask(forward, backward, config.consistency_alpha, config.consistency_beta)

@@ -104,7 +104,8 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
                       config: FlowConfig) -> dict[str, np.ndarray]:
     """{model: (N, 2) targets in b} of one object's (N, 2) pixels; ``dense`` (N, 2) its dense flow."""
     candidates = {"dense": pixels + dense}
-    found = (object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), config.rigid_search)
+    found = (object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), config.rigid_search,
+                                wide_search=config.rigid_wide_search, min_pixels=config.rigid_min_pixels)
              if config.rigid_objects else None)
     if found is not None:
         candidates["translation"] = pixels + found[0]
@@ -187,7 +188,8 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
         dense = flow[rows, cols].astype(np.float64)
         if label not in owners:
             counts["no_radar"] += 1
-            shift = (component_translation(gray_a, gray_b, pixels, dense, config.rigid_search, config.rigid_accept)
+            shift = (component_translation(gray_a, gray_b, pixels, dense, config.rigid_search, config.rigid_accept,
+                                           config.rigid_wide_search, config.rigid_min_pixels)
                      if config.rigid_objects else None)
             motion = dense if shift is None else np.broadcast_to(shift, dense.shape)
         else:
