@@ -76,9 +76,11 @@ class FlowConfig:
     # Components smaller than this (px) keep their dense flow (too little to match reliably).
     rigid_min_pixels: int = 10
     # When the best translation lies on the border of the +-rigid_search window, a coarse search over
-    # +-rigid_wide_search px (every second shift, blurred images) re-centres the window; 0 = off. An
-    # object too fast for the window and without a radar object to predict it (a cyclist crossing at
-    # 27 px a frame at 5 Hz) otherwise keeps a dense flow stuck to the background.
+    # +-rigid_wide_search px across the image (+-rigid_search up and down; every second shift, blurred
+    # images) re-centres the window; 0 = off. Only for components without a radar object (theirs is
+    # predicted) and of at least rigid_min_pixels x rigid_wide_search / rigid_search pixels. An object
+    # too fast for the window (a cyclist crossing at 27 px a frame at 5 Hz) otherwise keeps a dense
+    # flow stuck to the background.
     rigid_wide_search: int = 0
     # Radar-guided matching of large motions (DESIGN.md "Realistic motion", motion/objects_flow.py):
     # a component that a radar object's returns land on also gets the radar prediction (its

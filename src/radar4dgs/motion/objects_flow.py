@@ -104,8 +104,7 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
                       config: FlowConfig) -> dict[str, np.ndarray]:
     """{model: (N, 2) targets in b} of one object's (N, 2) pixels; ``dense`` (N, 2) its dense flow."""
     candidates = {"dense": pixels + dense}
-    found = (object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), config.rigid_search,
-                                wide_search=config.rigid_wide_search, min_pixels=config.rigid_min_pixels)
+    found = (object_translation(gray_a, gray_b, pixels, np.median(dense, axis=0), config.rigid_search)
              if config.rigid_objects else None)
     if found is not None:
         candidates["translation"] = pixels + found[0]

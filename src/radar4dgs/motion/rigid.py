@@ -18,15 +18,17 @@ def _photometric_error(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
 
 
 def _shift_errors(source: np.ndarray, b: np.ndarray, pixels: np.ndarray, start: np.ndarray,
-                  offsets: np.ndarray) -> np.ndarray:
-    """(S, S) mean absolute error of the (N,) ``source`` values at (N, 2) ``pixels`` against float image
-    ``b`` shifted by ``start + (offsets[x], offsets[y])`` at ``[y, x]``; targets outside b cost 255."""
+                  offsets: np.ndarray, offsets_v: np.ndarray | None = None) -> np.ndarray:
+    """(Sv, S) mean absolute error of the (N,) ``source`` values at (N, 2) ``pixels`` against float image
+    ``b`` shifted by ``start + (offsets[x], offsets_v[y])`` at ``[y, x]`` (``offsets_v`` defaults to
+    ``offsets``); targets outside b cost 255."""
+    offsets_v = offsets if offsets_v is None else offsets_v
     height, width = b.shape
     u = pixels[None, :, 0] + start[0] + offsets[:, None]  # (S, N)
-    v = pixels[None, :, 1] + start[1] + offsets[:, None]
+    v = pixels[None, :, 1] + start[1] + offsets_v[:, None]  # (Sv, N)
     u_in, v_in = (u >= 0) & (u < width), (v >= 0) & (v < height)
     u, v = np.clip(u, 0, width - 1), np.clip(v, 0, height - 1)
-    errors = np.empty((len(offsets), len(offsets)))
+    errors = np.empty((len(offsets_v), len(offsets)))
     for row, (v_row, v_ok) in enumerate(zip(v, v_in, strict=True)):
         diff = np.abs(source[None] - b[v_row[None], u])
         errors[row] = np.where(v_ok[None] & u_in, diff, 255.0).mean(axis=1)
@@ -34,18 +36,19 @@ def _shift_errors(source: np.ndarray, b: np.ndarray, pixels: np.ndarray, start: 
 
 
 def _coarse_shift(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, start: np.ndarray,
-                  radius: int, max_pixels: int = 1000) -> np.ndarray:
-    """(2,) int64 best offset from ``start`` among every second shift within +-``radius`` px, on images
-    blurred (sigma 1.5 px) so that a shift one pixel off the truth still scores near it."""
+                  radius: int, vertical: int, max_pixels: int = 1000) -> np.ndarray:
+    """(2,) int64 best offset from ``start`` among every second shift within +-``radius`` px across and
+    +-``vertical`` px up and down, on images blurred (sigma 1.5 px) so that a shift one pixel off the
+    truth still scores near it."""
     import cv2
 
     if len(pixels) > max_pixels:
         pixels = pixels[:: -(-len(pixels) // max_pixels)]
     blur_a, blur_b = (cv2.GaussianBlur(g.astype(np.float32), (0, 0), 1.5) for g in (gray_a, gray_b))
-    offsets = np.arange(-radius, radius + 1, 2)
-    errors = _shift_errors(blur_a[pixels[:, 1], pixels[:, 0]], blur_b, pixels, start, offsets)
+    across, updown = np.arange(-radius, radius + 1, 2), np.arange(-vertical, vertical + 1, 2)
+    errors = _shift_errors(blur_a[pixels[:, 1], pixels[:, 0]], blur_b, pixels, start, across, updown)
     y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
-    return offsets[[x, y]]
+    return np.array([across[x], updown[y]])
 
 
 def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, start: np.ndarray,
@@ -65,13 +68,15 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
         search: the window's radius in pixels.
         max_pixels: larger objects are matched on an evenly strided subset of their pixels.
         wide_search: when the window's best shift lies on its border and this is larger than
-            ``search``, a coarse search over +-``wide_search`` px around ``start`` (every second
-            shift, on blurred images, at most 1000 of the pixels) picks a new centre, and the window
-            is searched there. A cyclist crossing at 27 px a frame lies beyond a 12 px window around
-            its dense flow (stuck to the background); a full-resolution window that wide costs
-            its area on every object.
+            ``search``, a coarse search over +-``wide_search`` px across and +-``search`` px up and
+            down around ``start`` (every second shift, on blurred images, at most 1000 of the
+            pixels) picks a new centre, and the window is searched there. A cyclist crossing at 27
+            px a frame lies beyond a 12 px window around its dense flow (stuck to the background); a
+            full-resolution window that wide costs its area on every object. Movers keep to the
+            ground: far beyond the window they move across the image, and a wide vertical search
+            found a uniformly coloured taxi 25 px above where it went (rush tuning seed 202).
         min_pixels: the pixels one window's search needs (``FlowConfig.rigid_min_pixels``); the wide
-            search tries (wide_search / search)^2 times as many shifts, so it needs that many times
+            search tries wide_search / search times as many shifts, so it needs that many times
             more pixels to be as unambiguous (on rush-traffic tuning seeds 214-218, objects under
             60 px matched wide were mostly wrong).
     Returns:
@@ -79,7 +84,7 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
         the border of the (last) window searched (the true one may lie beyond it).
     """
     pixels = np.asarray(pixels, dtype=np.int64)
-    wide = wide_search > search and len(pixels) >= min_pixels * (wide_search / search) ** 2
+    wide = wide_search > search and len(pixels) >= min_pixels * wide_search / search
     if len(pixels) > max_pixels:
         pixels = pixels[:: -(-len(pixels) // max_pixels)]
     start = np.round(np.asarray(start, dtype=np.float64)).astype(np.int64)
@@ -90,7 +95,7 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
     y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
     on_border = y in (0, len(offsets) - 1) or x in (0, len(offsets) - 1)
     if on_border and wide:
-        start = start + _coarse_shift(gray_a, gray_b, pixels, start, wide_search)
+        start = start + _coarse_shift(gray_a, gray_b, pixels, start, wide_search, search)
         errors = _shift_errors(source, b, pixels, start, offsets)
         y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
         on_border = y in (0, len(offsets) - 1) or x in (0, len(offsets) - 1)
