@@ -5,8 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from hypothesis import given
-from hypothesis import strategies as st
 from PIL import Image
 
 from radar4dgs.apps.prepare import PrepareConfig, read_scene, run_prepare
@@ -19,10 +17,8 @@ from radar4dgs.model.gaussians import (
     GaussianSet,
     backproject_frame,
     backproject_frames,
-    capped_subset,
     initialize_gaussians,
     knn_log_scales,
-    small_object_pixels,
     to_canonical,
 )
 
@@ -215,54 +211,3 @@ def test_to_canonical_identity_and_round_trip():
     torch.testing.assert_close(canon, to_canonical(points, times, field, batch_size=10**6))
     back = field(canon, torch.as_tensor(times, dtype=torch.float32))
     torch.testing.assert_close(back, points, atol=1e-4, rtol=0)
-
-
-def test_small_object_pixels_marks_components_up_to_the_limit():
-    mask = np.zeros((20, 30), dtype=bool)
-    mask[2:12, 2:12] = True  # 100 px: a near car
-    mask[15:18, 20:22] = True  # 6 px: a far pedestrian
-    mask[14, 19] = True  # touches it diagonally: one 8-connected component of 7 px
-    v, u = np.nonzero(np.ones_like(mask))
-    small = small_object_pixels(mask, u, v, limit=7)
-    expected = mask.copy()
-    expected[2:12, 2:12] = False
-    np.testing.assert_array_equal(small.reshape(mask.shape), expected)
-    assert small.sum() == 7
-    assert small_object_pixels(mask, u, v, limit=6).sum() == 0
-    assert small_object_pixels(mask, u, v, limit=0) is None
-
-
-@given(total=st.integers(1, 300), protected_count=st.integers(0, 300), cap=st.integers(0, 300), seed=st.integers(0, 5))
-def test_capped_subset_keeps_the_protected_first(total, protected_count, cap, seed):
-    candidates = np.arange(total) * 3
-    protected = np.zeros(total, dtype=bool)
-    protected[np.random.default_rng(seed).permutation(total)[:min(protected_count, total)]] = True
-    kept = capped_subset(np.random.default_rng(seed), candidates, cap, protected)
-    assert len(kept) == min(cap, total) and len(np.unique(kept)) == len(kept)
-    assert np.all(np.diff(kept) > 0) and np.isin(kept, candidates).all()
-    kept_protected = np.isin(candidates[protected], kept).sum()
-    assert kept_protected == min(protected.sum(), len(kept))  # every protected one, or only protected ones
-    # Without protection: the uniform draw the caps always made (same generator calls).
-    plain = capped_subset(np.random.default_rng(seed), candidates, cap)
-    expected = candidates if total <= cap else np.sort(
-        np.random.default_rng(seed).choice(candidates, cap, replace=False))
-    np.testing.assert_array_equal(plain, expected)
-
-
-def test_small_objects_keep_their_share_of_the_dynamic_cap(prepared_scene):
-    scene, prepared = prepared_scene
-    everything = backproject_frames(scene, prepared, GaussianInitConfig(points_per_frame=0, max_dynamic=10**9,
-                                                                        small_object_pixels=60))
-    small_total = int(everything["small_object"].sum())
-    cap = int(everything["dynamic"].sum()) // 3
-    assert 0 < small_total < cap  # the tiny scene has both small and large dynamic components
-    uniform = backproject_frames(scene, prepared, GaussianInitConfig(points_per_frame=0, max_dynamic=cap))
-    first = backproject_frames(scene, prepared, GaussianInitConfig(points_per_frame=0, max_dynamic=cap,
-                                                                   small_object_pixels=60))
-    assert uniform["dynamic"].sum() == first["dynamic"].sum() == cap
-    assert not uniform["small_object"].any()
-    # Every small-object point survives the cap; a uniform draw keeps about a third of them.
-    assert int(first["small_object"].sum()) == small_total
-    keys = {tuple(k) for k in np.c_[everything["frame"], everything["pixels"]][everything["small_object"]]}
-    kept_uniform = sum(tuple(k) in keys for k in np.c_[uniform["frame"], uniform["pixels"]][uniform["dynamic"]])
-    assert kept_uniform < 0.6 * small_total

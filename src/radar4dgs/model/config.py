@@ -64,18 +64,17 @@ class GaussianInitConfig:
     source: Literal["depth", "lidar"] = "depth"
     # Candidate pixels are taken on a grid with this step (1 = every pixel) before subsampling.
     pixel_stride: int = 2
-    # Dynamic-mask pixels are taken on this finer grid: at the background's step a car (~0.4 % of a
-    # synthetic small frame) gets a few dozen Gaussians per frame, too few to draw it.
+    # Dynamic-mask pixels are taken on this (finer) grid: moving objects cover a small part of
+    # a driving image (~0.4 % of the synthetic small frames), and at the background's step they
+    # get a few dozen Gaussians per frame, too few to draw a car.
     dynamic_pixel_stride: int = 1
-    # At most this many points per training frame (random subset); 0 or less keeps every one.
+    # At most this many points are kept per training frame (uniform random subset of the
+    # candidates); 0 or less keeps every candidate.
     points_per_frame: int = 20_000
     # Cap on the total number of static Gaussians (uniform random subset over all frames).
     max_static: int = 200_000
     # Cap on the total number of dynamic Gaussians.
     max_dynamic: int = 50_000
-    # Both caps keep first the points on dynamic-mask components of at most this many pixels (a
-    # pedestrian, a far car); 0 = uniform, where a near car takes most of the dynamic budget.
-    small_object_pixels: int = 0
     # Pixels whose depth confidence (``depth/<frame>_confidence.npy``) is below this are dropped;
     # 0 keeps every non-sky pixel (confidence is 0 where the depth stage had no radar support,
     # which is still a usable initial position).
@@ -111,8 +110,8 @@ class GaussianInitConfig:
             raise ValueError(f"knn_k must be >= 1, got {self.knn_k}")
         if not 0.0 < self.min_scale <= self.max_scale:
             raise ValueError(f"need 0 < min_scale <= max_scale, got {self.min_scale}, {self.max_scale}")
-        if min(self.max_static, self.max_dynamic, self.small_object_pixels) < 0:
-            raise ValueError("max_static, max_dynamic and small_object_pixels must be >= 0")
+        if self.max_static < 0 or self.max_dynamic < 0:
+            raise ValueError("max_static and max_dynamic must be >= 0")
 
 
 @dataclass

@@ -49,47 +49,6 @@ def require_prepared(path: Path, what: str) -> Path:
     return path
 
 
-def small_object_pixels(dynamic: np.ndarray, u: np.ndarray, v: np.ndarray, limit: int) -> np.ndarray | None:
-    """(M,) bool: pixels ``(u, v)`` on a connected component of the (H, W) bool ``dynamic`` mask of at
-    most ``limit`` pixels (8-connected); None when ``limit`` is 0 (no protection)."""
-    if limit <= 0:
-        return None
-    from scipy.ndimage import label
-
-    labels, _ = label(dynamic, structure=np.ones((3, 3), dtype=bool))
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = limit + 1  # the background is never a small object
-    return sizes[labels[v, u]] <= limit
-
-
-def capped_subset(rng: np.random.Generator, candidates: np.ndarray, cap: int,
-                  protected: np.ndarray | None = None) -> np.ndarray:
-    """Sorted subset of at most ``cap`` of the (M,) ``candidates`` (indices), uniform at random. With
-    ``protected`` (M,) bool, those are kept first and the rest of the cap filled uniformly from the
-    others. Why: a uniform draw gives each object Gaussians in proportion to its pixels, so a car
-    12 m ahead takes three quarters of the dynamic budget and a pedestrian 35 m away a dozen, too
-    few to learn or to discover it as an actor."""
-    if len(candidates) <= cap:
-        return candidates
-    if protected is None:
-        return np.sort(rng.choice(candidates, size=cap, replace=False))
-    first, rest = candidates[protected], candidates[~protected]
-    if len(first) >= cap:
-        return np.sort(rng.choice(first, size=cap, replace=False))
-    return np.sort(np.concatenate([first, rng.choice(rest, size=cap - len(first), replace=False)]))
-
-
-def frame_subset(rng: np.random.Generator, dynamic: np.ndarray, u: np.ndarray, v: np.ndarray,
-                 config: GaussianInitConfig) -> tuple[np.ndarray, np.ndarray]:
-    """One frame's kept candidates among the (M,) pixels ``(u, v)``: their indices (``points_per_frame``
-    of them at most, small objects' first) and whether each kept one lies on a small object (K,) bool."""
-    small = small_object_pixels(dynamic, u, v, config.small_object_pixels)
-    candidates = np.arange(len(u))
-    if config.points_per_frame > 0:
-        candidates = capped_subset(rng, candidates, config.points_per_frame, small)
-    return candidates, np.zeros(len(candidates), dtype=bool) if small is None else small[candidates]
-
-
 def lidar_frame(scene, index: int, config: GaussianInitConfig, dynamic: np.ndarray,
                 rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Frame ``index``'s LiDAR points (``lidar/``, ego frame) in the world, keeping those that
@@ -103,13 +62,13 @@ def lidar_frame(scene, index: int, config: GaussianInitConfig, dynamic: np.ndarr
     u, v = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
     keep = (z > 0.1) & (z <= config.max_depth) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
     idx = np.nonzero(keep)[0]
-    chosen, small = frame_subset(rng, dynamic, u[idx], v[idx], config)
-    idx = idx[chosen]
+    if 0 < config.points_per_frame < len(idx):
+        idx = np.sort(rng.choice(idx, size=config.points_per_frame, replace=False))
     u, v = u[idx], v[idx]
     image = scene.load_image(index)
     return {"points": world[idx], "colors": image[v, u].astype(np.float64) / 255.0,
             "frame": np.full(len(idx), index, dtype=np.int64), "dynamic": dynamic[v, u],
-            "pixels": np.stack([u, v], axis=1).astype(np.int64), "small_object": small}
+            "pixels": np.stack([u, v], axis=1).astype(np.int64)}
 
 
 def backproject_frame(scene, prepared_dir: Path | str, index: int, config: GaussianInitConfig,
@@ -137,8 +96,9 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
     step = config.dynamic_pixel_stride
     grid[::step, ::step] |= dynamic[::step, ::step]
     v, u = np.nonzero(keep & grid)  # row-major order: deterministic
-    chosen, small = frame_subset(rng, dynamic, u, v, config)
-    v, u = v[chosen], u[chosen]
+    if 0 < config.points_per_frame < len(u):
+        chosen = np.sort(rng.choice(len(u), size=config.points_per_frame, replace=False))
+        v, u = v[chosen], u[chosen]
     points = backproject(np.stack([u, v], axis=1).astype(np.float64), depth[v, u], scene.camera.K,
                          scene.world_to_camera(index))
     image = scene.load_image(index)
@@ -148,7 +108,6 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
         "frame": np.full(len(u), index, dtype=np.int64),
         "dynamic": dynamic[v, u],
         "pixels": np.stack([u, v], axis=1).astype(np.int64),
-        "small_object": small,
     }
 
 
@@ -159,10 +118,8 @@ def backproject_frames(scene, prepared_dir: Path | str, config: GaussianInitConf
 
     Returns numpy arrays: ``points`` (M, 3) float64 world, ``colors`` (M, 3) float64 in [0, 1],
     ``frame`` (M,) int64 frame index, ``dynamic`` (M,) bool (predicted dynamic mask), ``pixels``
-    (M, 2) int64 (u, v), ``small_object`` (M,) bool (on a dynamic-mask component of at most
-    ``config.small_object_pixels`` pixels; all False when that is 0). Sky pixels (sky mask or
-    non-finite depth) never appear. The subsampling is deterministic given ``config.seed``; the
-    per-type caps are applied afterwards, small objects' points first. ``masks`` maps a
+    (M, 2) int64 (u, v). Sky pixels (sky mask or non-finite depth) never appear. The subsampling is
+    deterministic given ``config.seed``; the per-type caps are applied afterwards. ``masks`` maps a
     frame index to its (H, W) bool dynamic mask (default: each frame's ``prepared/masks``).
     With ``config.source == "lidar"`` the points are the frames' LiDAR points instead.
     """
@@ -173,16 +130,17 @@ def backproject_frames(scene, prepared_dir: Path | str, config: GaussianInitConf
                                 f"(init.source lidar); use init.source depth")
     parts = [backproject_frame(scene, prepared_dir, i, config, rng, None if masks is None else masks[i])
              for i in frames]
-    keys = ("points", "colors", "frame", "dynamic", "pixels", "small_object")
+    keys = ("points", "colors", "frame", "dynamic", "pixels")
     empty = {"points": np.zeros((0, 3)), "colors": np.zeros((0, 3)), "frame": np.zeros(0, np.int64),
-             "dynamic": np.zeros(0, bool), "pixels": np.zeros((0, 2), np.int64), "small_object": np.zeros(0, bool)}
+             "dynamic": np.zeros(0, bool), "pixels": np.zeros((0, 2), np.int64)}
     out = {k: np.concatenate([p[k] for p in parts], axis=0) if parts else empty[k] for k in keys}
-    # Caps: random subsets of each type (small objects' dynamic points first), order preserved.
+    # Caps: uniform random subsets of each type, order preserved.
     keep = np.ones(len(out["frame"]), dtype=bool)
     for flag, cap in ((False, config.max_static), (True, config.max_dynamic)):
         idx = np.nonzero(out["dynamic"] == flag)[0]
-        protected = out["small_object"][idx] if flag and config.small_object_pixels > 0 else None
-        keep[np.setdiff1d(idx, capped_subset(rng, idx, cap, protected))] = False
+        if len(idx) > cap:
+            drop = np.setdiff1d(idx, rng.choice(idx, size=cap, replace=False))
+            keep[drop] = False
     return {k: v[keep] for k, v in out.items()}
 
 
