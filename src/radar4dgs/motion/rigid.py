@@ -77,8 +77,8 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
             found a uniformly coloured taxi 25 px above where it went (rush tuning seed 202).
         min_pixels: the pixels one window's search needs (``FlowConfig.rigid_min_pixels``); the wide
             search tries wide_search / search times as many shifts, so it needs that many times
-            more pixels to be as unambiguous (on rush-traffic tuning seeds 214-218, objects under
-            60 px matched wide were mostly wrong).
+            more pixels to be as unambiguous (on rush-traffic tuning seeds 214-218, objects of a few
+            dozen pixels matched over a wide square window were mostly wrong).
     Returns:
         ((2,) float64 shift (du, dv), its mean error), or None when the best integer shift lies on
         the border of the (last) window searched (the true one may lie beyond it).
