@@ -35,6 +35,13 @@ def _shift_errors(source: np.ndarray, b: np.ndarray, pixels: np.ndarray, start: 
     return errors
 
 
+def _window_best(errors: np.ndarray) -> tuple[int, int, bool]:
+    """Row, column of the least of a window's (S, S) ``errors``, and whether it lies on the border."""
+    y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
+    last = errors.shape[0] - 1
+    return int(y), int(x), y in (0, last) or x in (0, last)
+
+
 def _coarse_shift(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, start: np.ndarray,
                   radius: int, vertical: int, max_pixels: int = 1000) -> np.ndarray:
     """(2,) int64 best offset from ``start`` among every second shift within +-``radius`` px across and
@@ -92,13 +99,11 @@ def object_translation(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarra
     source = gray_a[pixels[:, 1], pixels[:, 0]].astype(np.float32)
     b = gray_b.astype(np.float32)
     errors = _shift_errors(source, b, pixels, start, offsets)
-    y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
-    on_border = y in (0, len(offsets) - 1) or x in (0, len(offsets) - 1)
+    y, x, on_border = _window_best(errors)
     if on_border and wide:
         start = start + _coarse_shift(gray_a, gray_b, pixels, start, wide_search, search)
         errors = _shift_errors(source, b, pixels, start, offsets)
-        y, x = np.unravel_index(int(np.argmin(errors)), errors.shape)
-        on_border = y in (0, len(offsets) - 1) or x in (0, len(offsets) - 1)
+        y, x, on_border = _window_best(errors)
     if on_border:
         return None
     shift = (start + offsets[[x, y]]).astype(np.float64)
