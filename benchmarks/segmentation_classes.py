@@ -5,6 +5,7 @@ segmentation benchmark's calm scenes lack (pedestrians, cyclists, fast cars).
 
     python benchmarks/segmentation_classes.py --checkpoint segnet-small-traffic --label traffic \\
         --scenes SCENE ... [--work /tmp/radar4dgs-seg-classes] [--out benchmarks/results/F.json]
+    python benchmarks/segmentation_classes.py --label spread --set anchor_sampling=spread --scenes SCENE ...
 
 Scenes are folders with ``prepared/radar`` (``radar4dgs prepare SCENE --only radar``, or the scenes
 ``benchmarks/motion.py --frontend-only --work W`` leaves in W) and generator ground truth. The masks
@@ -14,6 +15,7 @@ are written under --work/<scene>-<label>/ and reused.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 from pathlib import Path
@@ -25,6 +27,7 @@ from radar4dgs.io.scene import read_scene
 from radar4dgs.io.scene_files import read_mask_png
 from radar4dgs.segment.config import SegInferConfig
 from radar4dgs.segment.infer import prepare_masks
+from scene_configs import prepare_config
 
 
 def box_pixels(scene, obj: dict, frame: int) -> tuple[slice, slice] | None:
@@ -78,10 +81,12 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=SegInferConfig.threshold)
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-seg-classes"))
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--set", nargs="*", default=[], help="SegInferConfig fields, KEY=VALUE (num_anchors=128)")
     args = parser.parse_args()
-    config = SegInferConfig(checkpoint=None if args.checkpoint is None else Path(args.checkpoint),
-                            threshold=args.threshold)
-    report = {"checkpoint": args.checkpoint, "threshold": args.threshold, "scenes": {}}
+    config = dataclasses.replace(prepare_config("small", [f"masks.{item}" for item in args.set]).masks,
+                                 checkpoint=None if args.checkpoint is None else Path(args.checkpoint),
+                                 threshold=args.threshold)
+    report = {"checkpoint": args.checkpoint, "threshold": args.threshold, "set": args.set, "scenes": {}}
     total = {"truth": 0, "predicted": 0, "both": 0, "classes": {}}
     for folder in args.scenes:
         scene = read_scene(folder)
