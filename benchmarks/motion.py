@@ -15,7 +15,8 @@ Seeds, fixed before any tuning (issue 21): calm traffic 1-5 (6-8 held out); real
 rush traffic at 10 Hz (fixed before any scene of that profile was made): 201-203 to tune on,
 204-208 only to report; rush traffic at 5 Hz (the hard set: twice the per-frame motion of 10 Hz;
 fixed before any scene of it was made): 209-213, report only, and 214-215 to tune on (fixed later,
-before any scene of them was made), and 216-218 to tune on as well (fixed the same way, later).
+before any scene of them was made), 216-218 and then 219-223 to tune on as well (each fixed
+the same way, later).
 The fit uses only prepared data: the radar front end, radar-scaled depth and the segmentation
 network's masks (`radar4dgs prepare`). With --oracle, depth and dynamic masks come from the scene's
 gt/ instead (an upper bound; written to motion-oracle.json unless --out is given). With

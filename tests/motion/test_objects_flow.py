@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from radar4dgs.config import preset
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import pair_scene_flow, prepare_flow
-from radar4dgs.motion.object_hints import ObjectHint, associate_components, predicted_targets
-from radar4dgs.motion.objects_flow import PairGeometry, choose_candidate, object_flow
+from radar4dgs.motion.object_hints import ObjectHint, component_claims, predicted_targets, split_by_returns
+from radar4dgs.motion.objects_flow import PairGeometry, choose_candidate, component_owners, object_flow
 from radar4dgs.motion.optical_flow import dis_flow
 from radar4dgs.motion.rigid import rigid_object_flow
 
@@ -163,9 +163,87 @@ def test_returns_vote_for_the_component_they_land_on_or_near():
     labels[5:15, 5:20], labels[20:35, 30:55] = 1, 2
     near = ObjectHint(np.array([[28.0, 25.0], [40.0, 30.0], [10.0, 10.0]]), np.zeros(3))  # 2 px left of 2
     far = ObjectHint(np.array([[2.0, 38.0], [58.0, 2.0]]), np.zeros(3))
-    owners = associate_components(labels, [near, far], radius=3.0, min_returns=2)
-    assert owners == {2: near}
-    assert associate_components(labels, [near], radius=3.0, min_returns=3) == {}
+    assert component_claims(labels, [near, far], radius=3.0, min_returns=2) == {2: [near]}
+    assert component_claims(labels, [near], radius=3.0, min_returns=3) == {}
+    # Two objects on one component: both claim it, most votes first.
+    more = ObjectHint(np.array([[35.0, 22.0], [45.0, 33.0], [50.0, 30.0]]), np.ones(3))
+    assert component_claims(labels, [near, more], radius=3.0, min_returns=2) == {2: [more, near]}
+
+
+def lifted(uv: np.ndarray, depth: float) -> np.ndarray:
+    """(K, 3) camera coordinates of the (K, 2) pixels at z-depth ``depth``."""
+    return np.column_stack([(uv - K[:2, 2]) / FOCAL * depth, np.full(len(uv), depth)])
+
+
+def test_a_component_is_split_by_the_nearest_return_in_depth_not_in_the_image():
+    # A near object's returns sit 6 px right of the pixels, a far one's on them: in the image the
+    # far returns are nearer, in 3-D the near ones.
+    pixels = np.array([[100, 60], [101, 61], [102, 59]])
+    near = ObjectHint(pixels + [6.0, 0.0], np.zeros(3), camera=lifted(pixels + [6.0, 0.0], 10.0))
+    far = ObjectHint(pixels.astype(float), np.zeros(3), camera=lifted(pixels.astype(float), 30.0))
+    assert split_by_returns(pixels, np.full(3, 10.5), K, [far, near]).tolist() == [1, 1, 1]
+    assert split_by_returns(pixels, np.full(3, 29.0), K, [far, near]).tolist() == [0, 0, 0]
+    # Without depth, the image decides.
+    assert split_by_returns(pixels, np.full(3, np.nan), K, [far, near]).tolist() == [0, 0, 0]
+
+
+def two_movers(depths: tuple[float, float] = (12.0, 20.0), returns: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> dict:
+    """Two textured discs that overlap in frame a (the first, ``depths[0]`` m away, in front) and
+    part: the first moves 40 px right, the second 30 px left. One mask component in a. ``returns``:
+    each disc's radar returns in the image (default: three spread over it)."""
+    background = texture(HEIGHT, WIDTH, seed=1)
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    centres, shifts, surfaces = [np.array([100.0, 60.0]), np.array([135.0, 55.0])], [40.0, -30.0], [7, 5]
+    spread = np.array([[-8.0, 2.0], [0.0, -6.0], [6.0, 5.0]])
+    returns = returns or (centres[0] + spread - [8.0, 0.0], centres[1] + spread)
+    a, b = background.copy(), background.copy()
+    depth_a = np.full((HEIGHT, WIDTH), 40.0)
+    flow = np.zeros((HEIGHT, WIDTH, 2))
+    owner = np.full((HEIGHT, WIDTH), -1)
+    hints = []
+    for k in (1, 0):  # the far disc first, the near one over it
+        surface, depth, shift = texture(HEIGHT, WIDTH, seed=surfaces[k]), depths[k], shifts[k]
+        disc_a = (u - centres[k][0]) ** 2 + (v - centres[k][1]) ** 2 <= 20 ** 2
+        disc_b = (u - centres[k][0] - shift) ** 2 + (v - centres[k][1]) ** 2 <= 20 ** 2
+        a[disc_a] = surface[disc_a]
+        b[disc_b] = np.roll(surface, int(shift), axis=1)[disc_b]
+        depth_a[disc_a], flow[disc_a], owner[disc_a] = depth, [shift, 0.0], k
+        hints.append(ObjectHint(returns[k], np.array([shift * depth / FOCAL / DT, 0.0, 0.0]), k,
+                                lifted(returns[k], depth)))
+    return {"a": a, "b": b, "mask": owner >= 0, "owner": owner, "flow": flow, "depth": depth_a,
+            "hints": hints[::-1]}
+
+
+def test_two_movers_in_one_component_each_get_their_own_motion():
+    scene = two_movers()
+    count, _ = cv2.connectedComponents(scene["mask"].astype(np.uint8), connectivity=8)
+    assert count == 2  # the premise: one component
+    dense = dis_flow(scene["a"], scene["b"], "medium")
+    errors = {}
+    for split in (0.0, 1.0):
+        flow, _, counts = object_flow(scene["a"], scene["b"], dense, scene["mask"], scene["hints"],
+                                      geometry(scene["depth"]), FlowConfig(radar_split_velocity=split))
+        error = np.linalg.norm(flow - scene["flow"], axis=2)
+        errors[split] = [float(np.median(error[scene["owner"] == k])) for k in (0, 1)]
+    assert max(errors[0.0]) > 10.0  # one motion for both: one of them is lost
+    assert max(errors[1.0]) < 1.0
+
+
+def test_the_images_split_a_component_where_the_returns_cannot():
+    # Both discs 15 m away, the first one's returns on its far left, the second's near the overlap:
+    # much of the first disc lies nearer the second's returns.
+    scene = two_movers(depths=(15.0, 15.0), returns=(np.array([[84.0, 60.0], [86.0, 52.0], [85.0, 68.0]]),
+                                                     np.array([[122.0, 55.0], [125.0, 48.0], [124.0, 62.0]])))
+    mask = scene["mask"]
+    rows, cols = np.nonzero(mask)
+    pixels = np.stack([cols, rows], axis=1)
+    truth = scene["owner"][rows, cols]
+    nearest = split_by_returns(pixels, scene["depth"][rows, cols], K, scene["hints"])
+    owner, _ = component_owners(scene["a"], scene["b"], mask, pixels, scene["hints"], geometry(scene["depth"]),
+                                FlowConfig())
+    assert (nearest == truth).mean() < 0.85  # the premise
+    assert (owner == truth).mean() > 0.97
 
 
 def test_the_flow_stage_uses_the_prepared_radar_objects(motion_scene, tmp_path):

@@ -100,6 +100,10 @@ class FlowConfig:
     radar_association_radius: float = 4.0
     # Votes an object needs on a component to be its radar object.
     radar_min_returns: int = 2
+    # A component claimed by radar objects whose planar velocities differ by more than this (m/s) is
+    # split between them (two movers overlapping in the image, such as a crossing car in front of the
+    # car ahead, make one mask component); 0 = the object with most votes takes it all.
+    radar_split_velocity: float = 1.0
     # Iteration cap of the ECC refinement of the matched affine (cv2.findTransformECC).
     radar_ecc_iterations: int = 100
     # ECC may change the linear part (scale, shear) of the radar-predicted warp by at most this

@@ -24,20 +24,24 @@ class ObjectHint:
         uv: (K, 2) float64 its returns projected into the image (in front of the camera only).
         velocity: (3,) float64 world velocity (m/s).
         track: the radar track id (for the summary).
+        camera: (K, 3) float64 the same returns in camera coordinates (m), or None when unknown.
     """
 
     uv: np.ndarray
     velocity: np.ndarray
     track: int = -1
+    camera: np.ndarray | None = None
 
 
-def project_returns(xyz_radar: np.ndarray, radar_to_camera: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(K', 2) pixel coordinates of the (K, 3) radar-frame points in front of the camera (K' <= K)."""
+def project_returns(xyz_radar: np.ndarray, radar_to_camera: np.ndarray, K: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates (K', 2) and camera coordinates (K', 3) of the (K, 3) radar-frame points in
+    front of the camera (K' <= K)."""
     xyz = np.asarray(xyz_radar, dtype=np.float64).reshape(-1, 3)
     cam = xyz @ radar_to_camera[:3, :3].T + radar_to_camera[:3, 3]
     cam = cam[cam[:, 2] > 1e-3]
     uv = (cam @ np.asarray(K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
-    return uv
+    return uv, cam
 
 
 def frame_hints(scene, index: int, objects) -> list[ObjectHint]:
@@ -58,24 +62,25 @@ def frame_hints(scene, index: int, objects) -> list[ObjectHint]:
         velocity = np.asarray(obj.velocity, dtype=np.float64)
         if len(rows) == 0 or not np.all(np.isfinite(velocity)):
             continue
-        hints.append(ObjectHint(project_returns(xyz[rows], to_camera, scene.camera.K), velocity, int(obj.track)))
+        uv, camera = project_returns(xyz[rows], to_camera, scene.camera.K)
+        hints.append(ObjectHint(uv, velocity, int(obj.track), camera))
     return hints
 
 
-def associate_components(labels: np.ndarray, hints: list[ObjectHint], radius: float,
-                         min_returns: int) -> dict[int, ObjectHint]:
-    """The radar object of each component of a labelled dynamic mask.
+def component_claims(labels: np.ndarray, hints: list[ObjectHint], radius: float,
+                     min_returns: int) -> dict[int, list[ObjectHint]]:
+    """The radar objects claiming each component of a labelled dynamic mask, most votes first.
 
     Each object votes with its returns for the component each lands on, or the nearest one within
-    ``radius`` px (radar elevation noise puts returns a few px off the mask); it belongs to the
-    component with most votes if they are at least ``min_returns``. A component claimed by several
-    objects keeps the one with most votes there.
+    ``radius`` px (radar elevation noise puts returns a few px off the mask); it claims the
+    component with most votes if they are at least ``min_returns``. Several objects can claim one
+    component: two movers that overlap in the image make one mask component.
 
     Args:
         labels: (H, W) int component labels (0 = background), as ``cv2.connectedComponents``.
         hints: the frame's objects.
     Returns:
-        {component label: hint}.
+        {component label: [hint, ...]}, each list ordered by votes, most first.
     """
     from scipy.ndimage import distance_transform_edt
 
@@ -85,8 +90,8 @@ def associate_components(labels: np.ndarray, hints: list[ObjectHint], radius: fl
     # For every pixel the label of the nearest labelled pixel and its distance.
     distance, (near_v, near_u) = distance_transform_edt(labels == 0, return_indices=True)
     nearest = np.where(distance <= radius, labels[near_v, near_u], 0)
-    best: dict[int, tuple[int, ObjectHint]] = {}
-    for hint in hints:
+    claims: dict[int, list[tuple[int, int, ObjectHint]]] = {}
+    for order, hint in enumerate(hints):
         u, v = np.round(hint.uv[:, 0]), np.round(hint.uv[:, 1])
         inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
         votes = nearest[v[inside].astype(np.int64), u[inside].astype(np.int64)]
@@ -95,9 +100,32 @@ def associate_components(labels: np.ndarray, hints: list[ObjectHint], radius: fl
             continue
         label = int(np.bincount(votes).argmax())
         count = int((votes == label).sum())
-        if count >= min_returns and count > best.get(label, (0, hint))[0]:
-            best[label] = (count, hint)
-    return {label: hint for label, (_, hint) in best.items()}
+        if count >= min_returns:
+            claims.setdefault(label, []).append((-count, order, hint))
+    return {label: [hint for _, _, hint in sorted(entries, key=lambda e: e[:2])] for label, entries in claims.items()}
+
+
+def split_by_returns(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, hints: list[ObjectHint]) -> np.ndarray:
+    """(N,) index into ``hints`` of the object each of one component's (N, 2) pixels belongs to:
+    the object owning the nearest return in 3-D, the pixels lifted with their (N,) z-depth (invalid
+    depths take the component's median; without any, the nearest return in the image).
+
+    Where two movers overlap in the image the depth tells the one in front from the one behind,
+    which the image position of radar returns (a few px of elevation noise) cannot. Every hint
+    needs ``camera`` returns.
+    """
+    from scipy.spatial import cKDTree
+
+    owner = np.concatenate([np.full(len(h.camera), k) for k, h in enumerate(hints)])
+    z = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    if valid.any():
+        z = np.where(valid, z, np.median(z[valid]))
+        in_camera = backproject(np.asarray(pixels, dtype=np.float64), z, K, np.eye(4))
+        _, nearest = cKDTree(np.concatenate([h.camera for h in hints])).query(in_camera)
+    else:
+        _, nearest = cKDTree(np.concatenate([h.uv for h in hints])).query(np.asarray(pixels, dtype=np.float64))
+    return owner[nearest]
 
 
 def predicted_targets(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, world_to_cam_a: np.ndarray,

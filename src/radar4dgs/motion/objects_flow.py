@@ -5,7 +5,9 @@ grows in the image: dense flow (DIS) and the +-``rigid_search`` translation of :
 fail there, and often fail alike forwards and backwards, so the consistency check keeps the error.
 Per connected component of the dynamic mask of frame a (one object):
 
-1. its radar object: the object whose projected returns land on it (:mod:`.object_hints`);
+1. its radar object: the object whose projected returns land on it (:mod:`.object_hints`); a
+   component claimed by objects moving differently (two movers overlapping in the image) is split
+   between them by their radar predictions and returns (:func:`component_owners`);
 2. candidates: the dense flow, today's translation (:func:`.rigid.component_translation`), the
    radar prediction (the pixels' 3D points moved by velocity x dt, projected into frame b) and an
    affine warp matched around the prediction (:mod:`.warp_match`: translation search, then ECC);
@@ -28,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.object_hints import ObjectHint, associate_components, predicted_targets
+from radar4dgs.motion.object_hints import ObjectHint, component_claims, predicted_targets, split_by_returns
 from radar4dgs.motion.rigid import component_translation, object_translation
 from radar4dgs.motion.sampling import bilinear_sample
 from radar4dgs.motion.warp_match import (
@@ -177,7 +179,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
     failed = np.zeros(mask.shape, dtype=bool)
     counts = dict.fromkeys((*MODELS, "no_radar"), 0)
     count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
-    owners = associate_components(labels, hints, config.radar_association_radius, config.radar_min_returns)
+    claims = component_claims(labels, hints, config.radar_association_radius, config.radar_min_returns)
     for label in range(1, count):
         component = labels == label
         rows, cols = np.nonzero(component)
@@ -185,24 +187,75 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
             continue
         pixels = np.stack([cols, rows], axis=1)
         dense = flow[rows, cols].astype(np.float64)
-        if label not in owners:
+        if label not in claims:
             counts["no_radar"] += 1
             shift = (component_translation(gray_a, gray_b, pixels, dense, config.rigid_search, config.rigid_accept,
                                            config.rigid_wide_search, config.rigid_min_pixels)
                      if config.rigid_objects else None)
             motion = dense if shift is None else np.broadcast_to(shift, dense.shape)
-        else:
-            candidates = candidate_targets(gray_a, gray_b, component, pixels, dense, owners[label], geometry, config)
-            model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, config.rigid_accept,
+            out[rows, cols] = motion
+            failed[rows, cols] = no_better_than_chance(gray_a, gray_b, pixels, pixels + motion, config)
+            continue
+        owner, objects = component_owners(gray_a, gray_b, component, pixels, claims[label], geometry, config)
+        for k, hint in enumerate(objects):
+            part = owner == k
+            if part.sum() < config.rigid_min_pixels:
+                continue
+            part_mask = np.zeros_like(component)
+            part_mask[rows[part], cols[part]] = True
+            candidates = candidate_targets(gray_a, gray_b, part_mask, pixels[part], dense[part], hint, geometry,
+                                           config)
+            model, _ = choose_candidate(gray_a, gray_b, pixels[part], candidates, config.rigid_accept,
                                         config.radar_min_inside, config.radar_dense_margin)
             counts[model] += 1
-            motion = candidates[model] - pixels
+            motion = candidates[model] - pixels[part]
             if config.radar_dense_agreement > 0:
-                agree = np.linalg.norm(dense - motion, axis=1) <= config.radar_dense_agreement
-                motion = np.where(agree[:, None], dense, motion)
-        out[rows, cols] = motion
-        failed[rows, cols] = no_better_than_chance(gray_a, gray_b, pixels, pixels + motion, config)
+                agree = np.linalg.norm(dense[part] - motion, axis=1) <= config.radar_dense_agreement
+                motion = np.where(agree[:, None], dense[part], motion)
+            out[rows[part], cols[part]] = motion
+            failed[rows[part], cols[part]] = no_better_than_chance(gray_a, gray_b, pixels[part],
+                                                                   pixels[part] + motion, config)
     return out, failed, counts
+
+
+def component_owners(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
+                     claims: list[ObjectHint], geometry: PairGeometry, config: FlowConfig
+                     ) -> tuple[np.ndarray, list[ObjectHint]]:
+    """Which radar object each of a component's (N, 2) pixels moves with: (N,) indices into the
+    returned objects. One object unless ``radar_split_velocity`` > 0 and the component is claimed
+    by objects whose velocities differ by more than that (m/s, planar); two radar clusters of one
+    car move alike and stay one part, so a car is not matched in halves.
+
+    Split, each pixel goes to the object whose radar prediction explains its neighbourhood best
+    (:func:`local_photometric_error` over ``pixel_error_window``) when that error is below
+    ``rigid_accept`` x the one of the object of its nearest return in 3-D
+    (:func:`split_by_returns`), and to the latter otherwise: a car's returns cluster on the side
+    facing the radar, so the far end of a car 4 m long can lie nearer another mover's returns, while
+    its texture follows its own motion. Where the images cannot tell (uniform paint), the returns do.
+    """
+    first = claims[0]
+    objects = [first] + [hint for hint in claims[1:] if config.radar_split_velocity > 0
+                         and hint.camera is not None and first.camera is not None
+                         and np.linalg.norm(hint.velocity[:2] - first.velocity[:2]) > config.radar_split_velocity]
+    if len(objects) == 1:
+        return np.zeros(len(pixels), dtype=np.int64), objects
+    depth = geometry.depth[pixels[:, 1], pixels[:, 0]]
+    owner = split_by_returns(pixels, depth, geometry.K, objects)
+    errors = np.full((len(objects), len(pixels)), np.nan)
+    for k, hint in enumerate(objects):
+        targets = predicted_targets(pixels, depth, geometry.K, geometry.world_to_cam_a, geometry.world_to_cam_b,
+                                    hint.velocity * geometry.dt)
+        if targets is None:
+            continue
+        flow = np.zeros((*component.shape, 2))
+        flow[pixels[:, 1], pixels[:, 0]] = targets - pixels
+        errors[k] = local_photometric_error(gray_a, gray_b, np.nan_to_num(flow, nan=1e6), component,
+                                            config.pixel_error_window)[pixels[:, 1], pixels[:, 0]]
+    scored = np.isfinite(errors).all(axis=0)
+    best = np.argmin(np.where(np.isfinite(errors), errors, np.inf), axis=0)
+    nearest_error = errors[owner, np.arange(len(pixels))]
+    clearer = scored & (errors[best, np.arange(len(pixels))] < config.rigid_accept * nearest_error)
+    return np.where(clearer, best, owner), objects
 
 
 def no_better_than_chance(gray_a: np.ndarray, gray_b: np.ndarray, pixels: np.ndarray, targets: np.ndarray,
