@@ -241,7 +241,7 @@ def test_the_images_split_a_component_where_the_returns_cannot():
     truth = scene["owner"][rows, cols]
     nearest = split_by_returns(pixels, scene["depth"][rows, cols], K, scene["hints"])
     owner, _ = component_owners(scene["a"], scene["b"], mask, pixels, scene["hints"], geometry(scene["depth"]),
-                                FlowConfig())
+                                FlowConfig(radar_split_velocity=1.0))
     assert (nearest == truth).mean() < 0.85  # the premise
     assert (owner == truth).mean() > 0.97
 

@@ -226,7 +226,7 @@ def component_owners(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarr
     by objects whose velocities differ by more than that (m/s, planar); two radar clusters of one
     car move alike and stay one part, so a car is not matched in halves.
 
-    Split, each pixel goes to the object whose radar prediction explains its neighbourhood best
+    When split, each pixel goes to the object whose radar prediction explains its neighbourhood best
     (:func:`local_photometric_error` over ``pixel_error_window``) when that error is below
     ``rigid_accept`` x the one of the object of its nearest return in 3-D
     (:func:`split_by_returns`), and to the latter otherwise: a car's returns cluster on the side
