@@ -5,7 +5,7 @@ segmentation benchmark's calm scenes lack (pedestrians, cyclists, fast cars).
 
     python benchmarks/segmentation_classes.py --checkpoint segnet-small-traffic --label traffic \\
         --scenes SCENE ... [--work /tmp/radar4dgs-seg-classes] [--out benchmarks/results/F.json]
-    python benchmarks/segmentation_classes.py --label spread --set anchor_sampling=spread --scenes SCENE ...
+    python benchmarks/segmentation_classes.py --label anchors128 --set num_anchors=128 --scenes SCENE ...
 
 Scenes are folders with ``prepared/radar`` (``radar4dgs prepare SCENE --only radar``, or the scenes
 ``benchmarks/motion.py --frontend-only --work W`` leaves in W) and generator ground truth. The masks

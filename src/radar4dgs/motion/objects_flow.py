@@ -201,8 +201,11 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
             part = owner == k
             if part.sum() < config.rigid_min_pixels:
                 continue
-            part_mask = np.zeros_like(component)
-            part_mask[rows[part], cols[part]] = True
+            if len(objects) == 1:
+                part_mask = component
+            else:
+                part_mask = np.zeros_like(component)
+                part_mask[rows[part], cols[part]] = True
             candidates = candidate_targets(gray_a, gray_b, part_mask, pixels[part], dense[part], hint, geometry,
                                            config)
             model, _ = choose_candidate(gray_a, gray_b, pixels[part], candidates, config.rigid_accept,
