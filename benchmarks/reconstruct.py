@@ -4,7 +4,7 @@ and with dynamics switched off, check that a killed run resumes to the same metr
     python benchmarks/reconstruct.py [--seeds 1 2 3] [--preset small] [--methods ours static]
                                      [--work /tmp/radar4dgs-recon-bench] [--resume-check SEED]
                                      [--aimotive] [--traffic calm|realistic|rush] [--fps 5] [--threads N]
-                                     [--set KEY=VALUE ...] [--out JSON]
+                                     [--set KEY=VALUE ...] [--prepare-set KEY=VALUE ...] [--out JSON]
 
 Every cell (seed x method) is a run folder under --work, in the demo's layout
 (seed<N>/{scene, prepared, run, static}); finished cells are reused, so an interrupted benchmark
@@ -24,6 +24,9 @@ frame at its width), and no demo is run (the demo makes calm scenes).
 
 --set KEY=VALUE sets (dotted) TrainConfig fields of every "ours" run, as `radar4dgs bench --set`
 (rigid_actors_at=0.3); use its own --work and --out, the runs are reused by folder.
+--prepare-set KEY=VALUE sets (dotted) PrepareConfig fields of every scene: with
+`depth.source=oracle flow.method=oracle flow.mask_source=oracle` and `--set mask_source=gt` every
+front-end input is the generator's truth, the ceiling of what a better front end can give.
 """
 
 from __future__ import annotations
@@ -42,16 +45,17 @@ from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
 from radar4dgs.io.scene import read_scene
-from scene_configs import synth_config
+from scene_configs import prepare_config, synth_config
 
 RESULTS = Path(__file__).parent / "results" / "reconstruct.json"
 FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotive-night"
 
 
-def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm", fps: float | None = None
-                  ) -> tuple[Path, Path, float]:
-    """The demo's layout: work/seed<N>/{scene, prepared}."""
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm", fps: float | None = None,
+                  prepare_set: list[str] = ()) -> tuple[Path, Path, float]:
+    """The demo's layout: work/seed<N>/{scene, prepared}; ``prepare_set``: dotted PrepareConfig
+    overrides (``flow.method=oracle``)."""
+    from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.datasets.synth import synthesize
 
     scene = work / f"seed{seed}" / "scene"
@@ -59,7 +63,7 @@ def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm"
     if not (scene / "scene.json").is_file():
         synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
                    preset=preset_name)
-    run_prepare(scene, work / f"seed{seed}" / "prepared", preset(PrepareConfig, preset_name), progress=False)
+    run_prepare(scene, work / f"seed{seed}" / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started
 
 
@@ -168,6 +172,8 @@ def main() -> None:
                         help="torch threads of each training (default: the preset's)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="TrainConfig fields of the 'ours' runs, dotted (rigid_actors_at=0.3)")
+    parser.add_argument("--prepare-set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="PrepareConfig fields of every scene, dotted (flow.method=oracle depth.source=oracle)")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
     if args.traffic != "calm" or args.fps is not None:
@@ -176,14 +182,15 @@ def main() -> None:
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
     results.setdefault("cells", {})
     results.update({"preset": args.preset, "threads": os.cpu_count(), "traffic": args.traffic, "fps": args.fps,
-                    "set": args.set})
+                    "set": args.set, "prepare_set": args.prepare_set})
     for seed in args.seeds:
         demo = run_demo(seed, args.preset, args.work) if seed == args.demo_seed else {}
         if demo:
             results["demo"] = {"seed": seed, **demo}
             atomic_write_json(args.out, results)
             print(f"radar4dgs demo (seed {seed}): {demo['demo_seconds']:.0f} s", flush=True)
-        scene, prepared, prepare_seconds = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps)
+        scene, prepared, prepare_seconds = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps,
+                                                         args.prepare_set)
         motion = None if args.traffic == "calm" else dynamic_motion_statistics(read_scene(scene))
         for method in args.methods:
             cell = train_and_eval(scene, prepared, run_dir(args.work, seed, method), args.preset, method, args.threads,

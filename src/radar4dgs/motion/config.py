@@ -16,7 +16,9 @@ class FlowConfig:
     """Optical flow, consistency check and lifting to 3D (the pseudo scene flow of stage 6)."""
 
     # "dis": OpenCV DIS, no weights. "raft": torchvision RAFT, needs `raft_checkpoint`.
-    method: Literal["dis", "raft"] = "dis"
+    # "oracle": the generator's true motion (gt/depth and gt/flow, synthetic scenes only), an upper
+    # bound for ablations: the masked pixels at their true positions, no estimate or checks.
+    method: Literal["dis", "raft", "oracle"] = "dis"
     # DIS preset; "medium" is accurate enough on 320x180 and runs in a few ms there.
     dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     # RAFT state dict (a torchvision checkpoint or a dict with a "state_dict"/"model" entry).

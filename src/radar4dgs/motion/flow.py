@@ -44,6 +44,8 @@ from radar4dgs.motion.object_hints import ObjectHint, frame_hints
 from radar4dgs.motion.objects_flow import PairGeometry, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
+from radar4dgs.motion.sampling import pixel_grid
+from radar4dgs.motion.truth import gt_scene_flow, project, visible_surface
 from radar4dgs.radar.objects import optional_radar_objects
 
 
@@ -173,6 +175,28 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models)
 
 
+def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> PairFlow:
+    """The generator's true pseudo scene flow of pair i -> j (``FlowConfig.method="oracle"``, an
+    upper bound for ablations): every pixel of ``mask_i`` (H, W) bool whose true surface point
+    (:func:`radar4dgs.motion.truth.gt_scene_flow`) is still the visible surface in frame j, at its
+    true positions at both times. No flow estimate, object step, consistency check or outlier
+    filter: the depth and motion are the truth whatever ``depth_source`` says."""
+    world_i, world_j, valid = gt_scene_flow(scene, index_i, index_j)
+    height, width = valid.shape
+    flat_j = world_j.reshape(-1, 3)
+    visible, _ = visible_surface(flat_j, scene, index_j)
+    consistent = valid & visible.reshape(height, width)
+    uv, _ = project(flat_j, scene.camera.K, scene.world_to_camera(index_j))
+    # The flow is the truth wherever the point is known, occluded in frame j or not; only the
+    # pixels still visible there become pairs.
+    known = valid & np.isfinite(uv).all(axis=1).reshape(height, width)
+    forward = np.where(known[..., None], uv.reshape(height, width, 2) - pixel_grid(height, width), 0.0)
+    kept = mask_i & consistent
+    rows, cols = np.nonzero(kept)
+    return PairFlow(forward.astype(np.float32), consistent, world_i[kept], world_j[kept],
+                    np.stack([cols, rows], axis=1).astype(np.float64), np.ones_like(consistent), {})
+
+
 def prepare_flow(scene, prepared_dir: str | Path, config: FlowConfig | None = None,
                  depth_dir: str | Path | None = None, mask_dir: str | Path | None = None,
                  progress: bool | Callable[[Iterable], Iterable] = False) -> dict:
@@ -221,7 +245,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     if pairs:
         first = pairs[0][0]
         cache[first] = _frame_inputs(scene, first, config, prepared_dir, depth_dir, mask_dir)
-    estimator = FlowEstimator(config)
+    estimator = None if config.method == "oracle" else FlowEstimator(config)
     K = scene.camera.K
     objects, objects_note = _radar_objects(scene, prepared_dir, config)
     hints: dict[int, list[ObjectHint]] = {}
@@ -230,23 +254,26 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     totals: dict[str, int] = {}
     flow_seconds = 0.0
     for i, j in iterator:
-        image_i, image_j = scene.load_image(i), scene.load_image(j)
-        started = time.perf_counter()
-        forward = estimator(image_i, image_j)
-        backward = estimator(image_j, image_i)
-        flow_seconds += time.perf_counter() - started
         for k in (i, j):
             if k not in cache:
                 cache[k] = _frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
         depth_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
         depth_j, mask_j = cache[j]
-        if objects is not None:
-            for k in (i, j):
-                hints.setdefault(k, frame_hints(scene, k, objects[k]))
-        result = pair_scene_flow(
-            config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
-            scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
-            scene.frames[j].timestamp - scene.frames[i].timestamp)
+        if estimator is None:
+            result = oracle_pair_flow(scene, i, j, mask_i)
+        else:
+            image_i, image_j = scene.load_image(i), scene.load_image(j)
+            started = time.perf_counter()
+            forward = estimator(image_i, image_j)
+            backward = estimator(image_j, image_i)
+            flow_seconds += time.perf_counter() - started
+            if objects is not None:
+                for k in (i, j):
+                    hints.setdefault(k, frame_hints(scene, k, objects[k]))
+            result = pair_scene_flow(
+                config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
+                scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
+                scene.frames[j].timestamp - scene.frames[i].timestamp)
         name = scene.frames[i].name
         atomic_write_bytes(out / f"{name}.npz", _npz_bytes(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,

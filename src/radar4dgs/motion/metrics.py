@@ -10,35 +10,26 @@ import numpy as np
 
 from radar4dgs.io.image_motion import MIN_DEPTH
 from radar4dgs.motion.flow import load_flow_pairs
-from radar4dgs.motion.lift import backproject
 from radar4dgs.motion.sampling import pixel_grid
+from radar4dgs.motion.truth import gt_scene_flow, project
 
 
 def gt_flow_2d(scene, index: int, next_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth 2D flow of frame ``index`` to ``index + 1`` from gt/depth and gt/flow (evaluation).
-
-    Each pixel's surface point ``X`` (from gt/depth) moves to ``X + gt_flow`` (world) and is
-    projected into frame ``index + 1``.
+    """Ground-truth 2D flow of frame ``index`` to ``next_index`` (default ``index + 1``) from
+    gt/depth and gt/flow (evaluation): each pixel's surface point moved by the true motion
+    (:func:`radar4dgs.motion.truth.gt_scene_flow`, composed over skipped frames) and projected
+    into frame ``next_index``.
 
     Returns:
-        flow (H, W, 2) float64 and valid (H, W) bool (finite depth, in front of camera j).
+        flow (H, W, 2) float64 and valid (H, W) bool (finite depth, visible through any skipped
+        frame, in front of camera j).
     """
     j = index + 1 if next_index is None else next_index
-    if j != index + 1:
-        raise ValueError("gt/flow is a one-frame displacement; only next_index = index + 1 is defined")
-    depth = scene.load_optional("gt/depth", index).astype(np.float64)
-    motion = scene.load_optional("gt/flow", index).astype(np.float64)
-    height, width = depth.shape
+    _, moved, valid = gt_scene_flow(scene, index, j)
+    height, width = valid.shape
+    uv, z = project(moved.reshape(-1, 3), scene.camera.K, scene.world_to_camera(j))
+    valid = valid.reshape(-1) & (z > MIN_DEPTH) & np.isfinite(uv).all(axis=1)
     grid = pixel_grid(height, width).reshape(-1, 2)
-    z = depth.reshape(-1)
-    finite = np.isfinite(z) & (z > 0)
-    world = backproject(grid, np.where(finite, z, 1.0), scene.camera.K, scene.world_to_camera(index))
-    moved = world + motion.reshape(-1, 3)
-    w2c = scene.world_to_camera(j)
-    cam = moved @ w2c[:3, :3].T + w2c[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = (cam @ np.asarray(scene.camera.K, dtype=np.float64).T)[:, :2] / cam[:, 2:3]
-    valid = finite & (cam[:, 2] > MIN_DEPTH) & np.isfinite(uv).all(axis=1)
     flow = np.where(valid[:, None], uv - grid, 0.0)
     return flow.reshape(height, width, 2), valid.reshape(height, width)
 
