@@ -16,13 +16,8 @@ WORK=${WORK:-/tmp/radar4dgs-gpu-ceiling-work}
 SEED=${SEED:-209}
 DEADLINE=${DEADLINE:-560}   # seconds: a cell that would run past it is stopped
 ORACLE="depth.source=oracle flow.method=oracle flow.mask_source=oracle"
-mkdir -p "$OUT" "$WORK"
-export PYTHONPATH="$PWD/src:$PWD/benchmarks:${PYTHONPATH:-}" PYTHONUNBUFFERED=1
-start=$SECONDS
-stamp() { echo "[$((SECONDS - start)) s] $*"; }
-left() { echo $((DEADLINE - (SECONDS - start))); }
-
-nvidia-smi -L
+# shellcheck source=benchmarks/gpu_common.sh
+source "$(dirname "$0")/gpu_common.sh"
 stamp "scene $SEED made and prepared twice (as prepared, from the truth)"
 prepare() {  # $1: work folder, rest: PrepareConfig overrides
   python3 -c "import sys; from pathlib import Path; from traffic import prepare_scene

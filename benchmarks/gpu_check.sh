@@ -21,13 +21,8 @@ set -u
 OUT=${OUT:-/tmp/radar4dgs-gpu-check}
 WORK=${WORK:-/tmp/radar4dgs-gpu-work}
 DEADLINE=${DEADLINE:-500}   # seconds: steps that would start later are skipped
-mkdir -p "$OUT" "$WORK"
-export PYTHONPATH="$PWD/src:$PWD/benchmarks:${PYTHONPATH:-}" PYTHONUNBUFFERED=1
-start=$SECONDS
-stamp() { echo "[$((SECONDS - start)) s] $*"; }
-left() { echo $((DEADLINE - (SECONDS - start))); }
-
-nvidia-smi -L
+# shellcheck source=benchmarks/gpu_common.sh
+source "$(dirname "$0")/gpu_common.sh"
 python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.get_device_name())"
 
 stamp "1. gsplat JIT build (background)"
