@@ -247,9 +247,8 @@ class Trainer:
         if self.config.dynamic_lifespan > 0:
             frames = points["frame"][points["dynamic"]]
             lifespan: float | np.ndarray = self.config.dynamic_lifespan + half_width
-            if self.config.dynamic_merge_voxel > 0:
-                self.log(f"stage 2: {len(frames)} dynamic points merged into {len(dynamic)} canonical voxels")
-            elif self.config.dynamic_lifespan_reference_px > 0 and len(frames):
+            # Speeds are measured per frame's point: merged Gaussians keep the spans of their frames.
+            if self.config.dynamic_lifespan_reference_px > 0 and len(frames) and not self.config.dynamic_merge_voxel:
                 speeds = image_speeds(points["points"][points["dynamic"]], frames, self.times, state.model.field,
                                       self.scene)
                 width_scale = self.scene.camera.width / IMAGE_MOTION_REFERENCE_WIDTH
@@ -259,6 +258,9 @@ class Trainer:
                 self.log(f"stage 2: dynamic life spans {lifespan.min():.3f}-{lifespan.max():.3f} "
                          f"(median speed {np.median(speeds):.1f} px per frame)")
             dynamic = with_lifespans(dynamic, seen, lifespan)
+        if self.config.dynamic_merge_voxel > 0:
+            self.log(f"stage 2: {int(points['dynamic'].sum())} dynamic points merged into {len(dynamic)} "
+                     f"canonical voxels of {self.config.dynamic_merge_voxel:g} m")
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
