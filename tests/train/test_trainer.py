@@ -186,16 +186,21 @@ def test_velocity_term_reaches_the_trainer_only_with_a_weight(prepared):
     assert all(torch.equal(without[k], with_velocity[k]) for k in without)
 
 
-@pytest.mark.parametrize("lifespan", [0.2, 0.0])
-def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_path, lifespan):
+def started_dynamic(prepared, tmp_path, **overrides):
+    """A fresh tiny run's state just after stage 2 began, and the frame time of each initial
+    dynamic point (N,)."""
     scene, prep = prepared
-    trainer = Trainer(scene, prep, tmp_path / "run", tiny_config(dynamic_lifespan=lifespan), progress=False,
-                      log=lambda _: None)
+    trainer = Trainer(scene, prep, tmp_path / "run", tiny_config(**overrides), progress=False, log=lambda _: None)
     trainer._load()
     state = trainer._fresh_state()
     trainer._start_dynamic(state)
     points = trainer._initial_points()
-    frame_times = trainer.times[points["frame"][points["dynamic"]]]
+    return state, trainer.times[points["frame"][points["dynamic"]]]
+
+
+@pytest.mark.parametrize("lifespan", [0.2, 0.0])
+def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_path, lifespan):
+    state, frame_times = started_dynamic(prepared, tmp_path, dynamic_lifespan=lifespan)
     dynamic = state.model.dynamic
     assert len(dynamic) == len(frame_times) > 0
     stored = dynamic.activated()["opacities"].detach()
@@ -351,14 +356,7 @@ def test_merged_dynamic_gaussians_live_over_the_frames_they_merge(prepared, tmp_
     """With voxels larger than the scene every frame's dynamic points merge into one Gaussian per
     octant of space, each peaking at the middle of its frames' times with the base span plus half
     their range: together the merged spans cover the first to the last frame that saw a mover."""
-    scene, prep = prepared
-    trainer = Trainer(scene, prep, tmp_path / "run", tiny_config(dynamic_lifespan=0.05, dynamic_merge_voxel=1e4),
-                      progress=False, log=lambda _: None)
-    trainer._load()
-    state = trainer._fresh_state()
-    trainer._start_dynamic(state)
-    points = trainer._initial_points()
-    frame_times = trainer.times[points["frame"][points["dynamic"]]]
+    state, frame_times = started_dynamic(prepared, tmp_path, dynamic_lifespan=0.05, dynamic_merge_voxel=1e4)
     dynamic = state.model.dynamic
     assert 1 <= len(dynamic) <= 8 < len(frame_times)
     tau = dynamic.params["tau"].detach().double().numpy()
