@@ -136,7 +136,8 @@ class FlowEstimator:
             self._dis = None
             self._raft = load_raft(config.raft_checkpoint, config.raft_model, config.device)
         else:
-            raise ValueError(f"unknown flow method {config.method!r}; choose 'dis' or 'raft'")
+            raise ValueError(f"flow method {config.method!r} estimates nothing here; choose 'dis' or 'raft' "
+                             f"('oracle' is the flow stage's copy of the truth, radar4dgs.motion.flow)")
 
     def __call__(self, image_a: np.ndarray, image_b: np.ndarray) -> np.ndarray:
         """(H, W, 2) float32 flow a -> b."""
