@@ -13,7 +13,7 @@ from radar4dgs.model.config import FieldConfig, TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.train.data import MotionTargets
 from radar4dgs.train.fit_motion import FlowSamples
-from radar4dgs.train.model_init import image_speeds, merge_voxels, new_field, speed_scaled_lifespans
+from radar4dgs.train.model_init import image_speeds, new_field, speed_scaled_lifespans
 
 
 @settings(max_examples=50, deadline=None)
@@ -94,30 +94,3 @@ def test_prefit_leaves_out_the_terms_the_run_does_not_weight(one_torch_thread):
     field = new_field(config, motion, motion.flow.x_i, torch.device("cpu"), torch.float64)
     x = torch.as_tensor(motion.flow.x_i[:50])
     assert torch.allclose(field.displacement(x, 0.2, 0.6), torch.zeros_like(x))
-
-
-def test_merge_voxels_keeps_one_point_per_cell_with_the_range_of_its_times():
-    points = np.array([[0.01, 0.01, 0.01], [0.09, 0.02, 0.03], [0.05, 0.05, 0.05], [1.02, 0.0, 0.0]])
-    colors = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.5, 0.5]])
-    times = np.array([0.1, 0.5, 0.3, 0.9])
-    merged, merged_colors, middle, half = merge_voxels(points, colors, times, voxel=0.1)
-    order = np.argsort(merged[:, 0])
-    np.testing.assert_allclose(merged[order], [[0.05, 0.08 / 3, 0.03], [1.02, 0.0, 0.0]])
-    np.testing.assert_allclose(merged_colors[order], [[1 / 3, 1 / 3, 1 / 3], [0.5, 0.5, 0.5]])
-    np.testing.assert_allclose(middle[order], [0.3, 0.9])
-    np.testing.assert_allclose(half[order], [0.2, 0.0])
-
-
-@settings(max_examples=30, deadline=None)
-@given(st.integers(1, 200), st.floats(0.01, 2.0), st.integers(0, 10_000))
-def test_merge_voxels_is_a_partition(n, voxel, seed):
-    """Every cell holds at least one point; with a voxel smaller than any gap nothing merges."""
-    rng = np.random.default_rng(seed)
-    points = rng.uniform(-5, 5, (n, 3))
-    times = rng.uniform(0, 1, n)
-    merged, _, middle, half = merge_voxels(points, rng.uniform(0, 1, (n, 3)), times, voxel)
-    cells = np.unique(np.floor(points / voxel), axis=0)
-    assert len(merged) == len(cells)
-    assert ((middle - half >= times.min() - 1e-12) & (middle + half <= times.max() + 1e-12)).all()
-    tiny, _, _, tiny_half = merge_voxels(points, np.zeros((n, 3)), times, 1e-9)
-    assert len(tiny) == n and not tiny_half.any()

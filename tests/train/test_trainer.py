@@ -351,16 +351,3 @@ def test_coarse_to_fine_renders_early_iterations_at_the_coarse_scale(prepared, t
     sizes = [h["width"] for h in state.history if "total" in h]
     assert sizes == [coarse.view.width] * 3 + [full.view.width] * 3
 
-
-def test_merged_dynamic_gaussians_live_over_the_frames_they_merge(prepared, tmp_path):
-    """With voxels larger than the scene every frame's dynamic points merge into one Gaussian per
-    octant of space, each peaking at the middle of its frames' times with the base span plus half
-    their range: together the merged spans cover the first to the last frame that saw a mover."""
-    state, frame_times = started_dynamic(prepared, tmp_path, dynamic_lifespan=0.05, dynamic_merge_voxel=1e4)
-    dynamic = state.model.dynamic
-    assert 1 <= len(dynamic) <= 8 < len(frame_times)
-    tau = dynamic.params["tau"].detach().double().numpy()
-    half = dynamic.params["log_lifespan"].detach().double().exp().numpy() - 0.05
-    assert (half >= -1e-6).all()
-    assert math.isclose((tau - half).min(), frame_times.min(), abs_tol=1e-5)
-    assert math.isclose((tau + half).max(), frame_times.max(), abs_tol=1e-5)

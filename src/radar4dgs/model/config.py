@@ -361,12 +361,6 @@ class TrainConfig:
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,
     # down to one frame (train.model_init.speed_scaled_lifespans); 0 = one span for all.
     dynamic_lifespan_reference_px: float = 0.0
-    # Ours: merge the dynamic points that the field brings into one canonical voxel of this size (m)
-    # into one Gaussian, whose life span widens by half the range of the frames it merges; 0 = one
-    # Gaussian per frame's point (dynamic_lifespan_reference_px is then not used). Off: on hard
-    # tuning seed 214 (bench grid) 0.1 m scored 19.96 dB of novel-view PSNR* against 20.46 without
-    # it (20.66 / 21.56 with every front-end input true).
-    dynamic_merge_voxel: float = 0.0
     # Ours: at this fraction of the iterations (0 = never) the dynamic Gaussians are grouped into
     # actors (radar4dgs.actors.discover, default ActorConfig) and each actor's Gaussians leave the
     # deformation field for a rigid motion of its own: a yaw and a translation per training frame,
@@ -485,8 +479,6 @@ class TrainConfig:
             raise ValueError(f"rigid_actors_min_motion must be >= 0, got {self.rigid_actors_min_motion}")
         if not 0.0 <= self.rigid_actors_at < 1.0:
             raise ValueError(f"rigid_actors_at must lie in [0, 1) (0 = never), got {self.rigid_actors_at}")
-        if self.dynamic_merge_voxel < 0:
-            raise ValueError(f"dynamic_merge_voxel must be >= 0, got {self.dynamic_merge_voxel}")
         if self.dynamic_lifespan_reference_px < 0:
             raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:

@@ -77,44 +77,13 @@ def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:
 
 
 def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformation: DeformationField,
-                      config: TrainConfig, device, dtype) -> tuple[GaussianSet, np.ndarray, np.ndarray]:
-    """Dynamic Gaussians at the canonical positions of their frames' world points.
-
-    Returns the Gaussians, each one's life peak (N,) (the normalised time of the frame that saw it)
-    and the half width (N,) of the times it stands for: 0, or with ``config.dynamic_merge_voxel``
-    the points of several frames that the field brings into one canonical voxel, merged into one
-    Gaussian at their mean position and colour, peaking at the middle of their times."""
+                      config: TrainConfig, device, dtype) -> GaussianSet:
+    """Dynamic Gaussians at the canonical positions of their frames' world points."""
     dyn = points["dynamic"]
     world = points["points"][dyn]
-    seen = times[points["frame"][dyn]]
-    canonical = to_canonical(world, seen, deformation).double().cpu().numpy() if len(world) else world
-    colors = points["colors"][dyn]
-    half_width = np.zeros(len(seen))
-    if config.dynamic_merge_voxel > 0 and len(world):
-        canonical, colors, seen, half_width = merge_voxels(canonical, colors, seen, config.dynamic_merge_voxel)
-    return GaussianSet.from_points(canonical, colors, **gaussian_kwargs(config, device, dtype)), seen, half_width
-
-
-def merge_voxels(points: np.ndarray, colors: np.ndarray, times: np.ndarray,
-                 voxel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One point per ``voxel``-sized cell of (N, 3) ``points``: the cell's mean position (M, 3) and
-    colour (M, 3), the middle of its (N,) ``times`` (M,) and their half range (M,).
-
-    Written with numpy's unique/bincount: the per-cell time range is not what a point-cloud
-    library's voxel filter keeps."""
-    cells = np.floor(points / voxel).astype(np.int64)
-    _, owner = np.unique(cells, axis=0, return_inverse=True)
-    owner = owner.reshape(-1)
-    count = np.bincount(owner).astype(np.float64)
-
-    def mean(values: np.ndarray) -> np.ndarray:
-        return np.stack([np.bincount(owner, values[:, k]) / count for k in range(values.shape[1])], axis=1)
-
-    first = np.full(len(count), np.inf)
-    last = np.full(len(count), -np.inf)
-    np.minimum.at(first, owner, times)
-    np.maximum.at(last, owner, times)
-    return mean(points), mean(colors), (first + last) / 2, (last - first) / 2
+    canonical = to_canonical(world, times[points["frame"][dyn]], deformation).double().cpu().numpy() \
+        if len(world) else world
+    return GaussianSet.from_points(canonical, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
 
 
 def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float | np.ndarray,

@@ -242,25 +242,19 @@ class Trainer:
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
         points = self._initial_points()
-        dynamic, seen, half_width = dynamic_gaussians(points, self.times, state.model.field, self.config, self.device,
-                                                      self.dtype)
+        dynamic = dynamic_gaussians(points, self.times, state.model.field, self.config, self.device, self.dtype)
         if self.config.dynamic_lifespan > 0:
             frames = points["frame"][points["dynamic"]]
-            lifespan: float | np.ndarray = self.config.dynamic_lifespan + half_width
-            # Speeds are measured per frame's point: merged Gaussians keep the spans of their frames.
-            if self.config.dynamic_lifespan_reference_px > 0 and len(frames) and not self.config.dynamic_merge_voxel:
+            lifespan: float | np.ndarray = self.config.dynamic_lifespan
+            if self.config.dynamic_lifespan_reference_px > 0 and len(frames):
                 speeds = image_speeds(points["points"][points["dynamic"]], frames, self.times, state.model.field,
                                       self.scene)
                 width_scale = self.scene.camera.width / IMAGE_MOTION_REFERENCE_WIDTH
                 reference = self.config.dynamic_lifespan_reference_px * width_scale
-                lifespan = speed_scaled_lifespans(speeds, self.config.dynamic_lifespan, reference,
-                                                  float(np.min(np.diff(self.times))))
+                lifespan = speed_scaled_lifespans(speeds, lifespan, reference, float(np.min(np.diff(self.times))))
                 self.log(f"stage 2: dynamic life spans {lifespan.min():.3f}-{lifespan.max():.3f} "
                          f"(median speed {np.median(speeds):.1f} px per frame)")
-            dynamic = with_lifespans(dynamic, seen, lifespan)
-        if self.config.dynamic_merge_voxel > 0:
-            self.log(f"stage 2: {int(points['dynamic'].sum())} dynamic points merged into {len(dynamic)} "
-                     f"canonical voxels of {self.config.dynamic_merge_voxel:g} m")
+            dynamic = with_lifespans(dynamic, self.times[frames], lifespan)
         state.model.dynamic = dynamic
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
