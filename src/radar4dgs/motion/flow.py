@@ -44,8 +44,7 @@ from radar4dgs.motion.object_hints import ObjectHint, frame_hints
 from radar4dgs.motion.objects_flow import PairGeometry, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
-from radar4dgs.motion.sampling import pixel_grid
-from radar4dgs.motion.truth import gt_scene_flow, project, visible_surface
+from radar4dgs.motion.truth import gt_scene_flow, image_flow, visible_surface
 from radar4dgs.radar.objects import optional_radar_objects
 
 
@@ -182,15 +181,11 @@ def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> P
     true positions at both times. No flow estimate, object step, consistency check or outlier
     filter: the depth and motion are the truth whatever ``depth_source`` says."""
     world_i, world_j, valid = gt_scene_flow(scene, index_i, index_j)
-    height, width = valid.shape
-    flat_j = world_j.reshape(-1, 3)
-    visible, _ = visible_surface(flat_j, scene, index_j)
-    consistent = valid & visible.reshape(height, width)
-    uv, _ = project(flat_j, scene.camera.K, scene.world_to_camera(index_j))
     # The flow is the truth wherever the point is known, occluded in frame j or not; only the
     # pixels still visible there become pairs.
-    known = valid & np.isfinite(uv).all(axis=1).reshape(height, width)
-    forward = np.where(known[..., None], uv.reshape(height, width, 2) - pixel_grid(height, width), 0.0)
+    forward, _ = image_flow(world_j, valid, scene, index_j)
+    visible, _ = visible_surface(world_j.reshape(-1, 3), scene, index_j)
+    consistent = valid & visible.reshape(valid.shape)
     kept = mask_i & consistent
     rows, cols = np.nonzero(kept)
     return PairFlow(forward.astype(np.float32), consistent, world_i[kept], world_j[kept],

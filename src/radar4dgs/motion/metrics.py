@@ -8,10 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from radar4dgs.io.image_motion import MIN_DEPTH
 from radar4dgs.motion.flow import load_flow_pairs
 from radar4dgs.motion.sampling import pixel_grid
-from radar4dgs.motion.truth import gt_scene_flow, project
+from radar4dgs.motion.truth import gt_scene_flow, image_flow
 
 
 def gt_flow_2d(scene, index: int, next_index: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -26,12 +25,7 @@ def gt_flow_2d(scene, index: int, next_index: int | None = None) -> tuple[np.nda
     """
     j = index + 1 if next_index is None else next_index
     _, moved, valid = gt_scene_flow(scene, index, j)
-    height, width = valid.shape
-    uv, z = project(moved.reshape(-1, 3), scene.camera.K, scene.world_to_camera(j))
-    valid = valid.reshape(-1) & (z > MIN_DEPTH) & np.isfinite(uv).all(axis=1)
-    grid = pixel_grid(height, width).reshape(-1, 2)
-    flow = np.where(valid[:, None], uv - grid, 0.0)
-    return flow.reshape(height, width, 2), valid.reshape(height, width)
+    return image_flow(moved, valid, scene, j)
 
 
 def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | None = None) -> dict:

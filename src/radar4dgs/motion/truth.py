@@ -67,3 +67,14 @@ def gt_scene_flow(scene, index: int, next_index: int) -> tuple[np.ndarray, np.nd
         valid &= visible
         world = world + scene.load_optional("gt/flow", k).astype(np.float64).reshape(-1, 3)[flat]
     return world_i.reshape(height, width, 3), world.reshape(height, width, 3), valid.reshape(height, width)
+
+
+def image_flow(moved: np.ndarray, valid: np.ndarray, scene, index: int) -> tuple[np.ndarray, np.ndarray]:
+    """The 2D flow (H, W, 2) float64 that takes each pixel to where its moved point (H, W, 3) world
+    projects in frame ``index``, and where that is defined (H, W) bool: ``valid`` and in front of
+    the camera. Elsewhere the flow is 0."""
+    height, width = valid.shape
+    uv, z = project(moved.reshape(-1, 3), scene.camera.K, scene.world_to_camera(index))
+    defined = valid.reshape(-1) & (z > MIN_DEPTH) & np.isfinite(uv).all(axis=1)
+    flow = np.where(defined[:, None], uv - pixel_grid(height, width).reshape(-1, 2), 0.0)
+    return flow.reshape(height, width, 2), defined.reshape(height, width)
