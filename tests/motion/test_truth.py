@@ -54,8 +54,8 @@ def test_consecutive_frames_need_no_composition(motion_scene):
 
 
 def test_oracle_flow_method_writes_the_truth(motion_scene, tmp_path):
-    prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", method="oracle", depth_source="oracle",
-                                                 mask_source="oracle"))
+    # depth_source stays "prepared" and tmp_path has no depth: the oracle takes the generator's own.
+    prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", method="oracle", mask_source="oracle"))
     metrics = motion_frontend_metrics(motion_scene, tmp_path)
     assert metrics["flow2d_epe_dynamic"] < 1e-3 and metrics["sceneflow_epe_dynamic"] < 1e-4
     skipping = [p for p in load_flow_pairs(tmp_path) if int(p["index_j"]) > int(p["index_i"]) + 1]

@@ -103,10 +103,12 @@ def _npz_bytes(**arrays: np.ndarray) -> bytes:
 
 
 def _frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
-                  depth_dir: str | Path | None, mask_dir: str | Path | None) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) float64 depth and (H, W) bool dynamic mask of frame ``index`` from the config's sources."""
-    return (load_depth(scene, index, config.depth_source, prepared_dir, depth_dir),
-            load_mask(scene, index, config.mask_source, prepared_dir, mask_dir))
+                  depth_dir: str | Path | None, mask_dir: str | Path | None) -> tuple[np.ndarray | None, np.ndarray]:
+    """(H, W) float64 depth and (H, W) bool dynamic mask of frame ``index`` from the config's sources;
+    no depth for the oracle flow, which takes the generator's own."""
+    depth = None if config.method == "oracle" else load_depth(scene, index, config.depth_source, prepared_dir,
+                                                              depth_dir)
+    return depth, load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
 
 
 def _with_progress(pairs: list[tuple[int, int]], progress: bool | Callable[[Iterable], Iterable]) -> Iterable:
@@ -235,7 +237,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pairs = frame_pairs(scene, config.skip_test_frames)
-    cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    cache: dict[int, tuple[np.ndarray | None, np.ndarray]] = {}
     # Load the first frame up front, so a missing input folder fails before any flow is computed.
     if pairs:
         first = pairs[0][0]

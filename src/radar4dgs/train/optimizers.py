@@ -116,3 +116,60 @@ def set_refine_learning_rates(optimizers: dict[str, torch.optim.Optimizer], conf
     for group in optimizers["poses"].param_groups:
         base = config.poses.translation_lr if group["name"] == "poses.translation" else config.poses.rotation_lr
         group["lr"] = base * scale
+
+
+def gaussian_visibility(render: dict, keep: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """``{"static": (Ns,) bool, "dynamic": (Nd,) bool}``: the Gaussians of each set that the render of
+    this iteration drew (radii > 0 on both axes, and not dropped by ``keep``, over the render's
+    static-then-dynamic order); a set the render left out is absent."""
+    visible = (render["meta"]["radii"][0] > 0).all(dim=-1)
+    if keep is not None:
+        visible = visible & keep.to(visible.device)
+    n_static, n_dynamic = render["n_static"], render["n_dynamic"]
+    out = {"static": visible[:n_static]}
+    if n_dynamic:
+        out["dynamic"] = visible[n_static:n_static + n_dynamic]
+    return out
+
+
+@torch.no_grad()
+def selective_step(optimizer: torch.optim.Optimizer, visible: torch.Tensor) -> None:
+    """An Adam step of a Gaussian set's optimizer that leaves the rows of the Gaussians not drawn
+    (``visible`` (N,) False) as they were: their parameters and both moments. With plain Adam a
+    Gaussian keeps moving on its momentum for tens of iterations after its last gradient, and a
+    dynamic Gaussian, drawn only in the few frames of its life span, spends most of the run so.
+    gsplat's ``SelectiveAdam`` does this in one CUDA kernel; it is not available on the CPU, so
+    here the fused step runs on every row and the hidden rows are written back."""
+    hidden = ~visible
+    if not bool(hidden.any()):
+        optimizer.step()
+        return
+    saved = []
+    for group in optimizer.param_groups:
+        for param in group["params"]:
+            if param.grad is None:
+                continue
+            if param.shape[0] != len(visible):
+                raise ValueError(f"selective_step: parameter {group.get('name', '?')} has {param.shape[0]} rows, "
+                                 f"the visibility mask {len(visible)}")
+            state = optimizer.state.get(param, {})
+            moments = {key: state[key][hidden].clone() for key in ("exp_avg", "exp_avg_sq") if key in state}
+            saved.append((param, param[hidden].clone(), moments))
+    optimizer.step()
+    for param, rows, moments in saved:
+        param[hidden] = rows
+        for key in ("exp_avg", "exp_avg_sq"):  # moments the step created start at 0, as Adam's
+            optimizer.state[param][key][hidden] = moments.get(key, 0.0)
+
+
+def step_optimizers(optimizers: dict[str, torch.optim.Optimizer], names: list[str],
+                    visibility: dict[str, torch.Tensor] | None) -> None:
+    """Step the optimizers of ``names`` that exist; a Gaussian set named in ``visibility`` takes a
+    :func:`selective_step` with its mask."""
+    for name in names:
+        if name not in optimizers:
+            continue
+        if visibility is not None and name in visibility:
+            selective_step(optimizers[name], visibility[name])
+        else:
+            optimizers[name].step()
