@@ -15,7 +15,6 @@ from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
 from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
-from radar4dgs.train.optimizers import gaussian_visibility
 from radar4dgs.train.trainer import Trainer, TrainingError, frame_order, psnr_of, step_generator, train_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -219,34 +218,6 @@ def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_pat
     torch.testing.assert_close(at_own_time[same_frame], stored[same_frame])
     # 0.4 = two life spans later: exp(-0.5 * 2^2) of the stored opacity.
     torch.testing.assert_close(later[same_frame], stored[same_frame] * math.exp(-2.0))
-
-
-@pytest.mark.parametrize("selective", [True, False])
-def test_selective_adam_leaves_the_undrawn_dynamic_gaussians_in_place(prepared, tmp_path, selective):
-    """Two stage-2 iterations on different frames: with selective Adam only the Gaussians the
-    second render drew move; plain Adam also moves Gaussians the first frame drew and the second
-    did not (the check that the test can fail)."""
-    scene, prep = prepared
-    config = tiny_config(dynamic_lifespan=0.05, coarse_until=0.0,
-                         optim={"dropout": 0.0, "selective_adam": selective}, densify={"every": 0})
-    trainer = Trainer(scene, prep, tmp_path / "run", config, progress=False, log=lambda _: None)
-    trainer._load()
-    state = trainer._fresh_state()
-    state.step = next(s for s in range(config.optim.iterations) if config.stage_at(s) == 2)
-    trainer._iteration(state)
-    state.step += 1
-    row = int(frame_order(config.seed, state.step // len(trainer.targets), len(trainer.targets))[
-        state.step % len(trainer.targets)])
-    target = trainer.targets[row]
-    with torch.no_grad():
-        drawn = gaussian_visibility(state.model.render(target.view, config.raster, target.directions), None)["dynamic"]
-    before = {k: v.detach().clone() for k, v in state.model.dynamic.params.items()}
-    trainer._iteration(state)
-    moved = torch.zeros(len(drawn), dtype=torch.bool)
-    for key, value in state.model.dynamic.params.items():
-        moved |= (value.detach() != before[key]).reshape(len(drawn), -1).any(dim=1)
-    assert 0 < int(drawn.sum()) < len(drawn) and bool(moved[drawn].any())
-    assert bool(moved[~drawn].any()) != selective
 
 
 def test_resume_matches_an_unbroken_run(prepared, tmp_path):

@@ -294,12 +294,13 @@ class OptimConfig:
     # Deformation field (Adam), decayed by field_lr_final_ratio over the run.
     field_lr: float = 1e-3
     field_lr_final_ratio: float = 0.1
-    # Ours: before stage 1, fit the field alone to its supervision (L_flow, L_rad and L_vel, the
-    # standalone fit's learning rate and schedule) for this many iterations; 0 = off. Stage 1 trains
-    # the field for only stage2_start x iterations (150 at the bench grid's 600), and stage 2 places
-    # the dynamic Gaussians with it: hard tuning seeds' scene-flow error 0.10-0.61 m, 0.06-0.18 m
-    # after a full fit. small pre-fits 1000 (bench grid: PSNR* +0.52 dB on the rush 5 Hz report
-    # seeds, calm seeds 1 / 2 +0.58 / -0.19 dB); tiny and paper (a long stage 1) keep it off.
+    # Ours: before stage 1, fit the field alone to its supervision (L_flow, L_rad and L_vel with
+    # the losses' weights, the standalone fit's learning rate and schedule) for this many
+    # iterations; 0 = off. Stage 1 trains the field for only stage2_start x iterations at field_lr
+    # (150 at the bench grid's 600), and stage 2 places the dynamic Gaussians with that field: on the
+    # hard tuning seeds its scene-flow error was 0.10-0.61 m there, 0.06-0.18 m after a full fit.
+    # small pre-fits 1000 (bench grid: PSNR* +0.52 dB on the rush 5 Hz report seeds, calm seeds 1 / 2
+    # +0.58 / -0.19 dB); tiny (a smoke test) and paper (whose stage 1 is long) keep it off.
     field_prefit_iterations: int = 0
     # Sky environment map (colour logits).
     sky_lr: float = 1e-2
@@ -309,9 +310,6 @@ class OptimConfig:
     # Iterations over which dropout is used, as a fraction of the run (off for the last part so the
     # model settles on the opacities it is evaluated with).
     dropout_until: float = 0.9
-    # Step only the Gaussians the iteration drew (train.optimizers.selective_step): a Gaussian out
-    # of view or out of its life span keeps its parameters and Adam moments instead of drifting.
-    selective_adam: bool = False
 
 
 @dataclass
@@ -354,9 +352,10 @@ class TrainConfig:
     # seen in, learned afterwards (PVG's temporal visibility); 0 = visible at every time, as the
     # paper. The field carries one canonical copy of a car per training frame; with a life span
     # each copy draws the car only near its own frame, so the field's error over long time gaps
-    # (a copy moved 40 frames away) blurs nothing. Rates: baselines.time_lr and lifespan_lr. 0.05
-    # is about 2.5 frames of 50 either side; synthetic small seed 1, novel-view PSNR* 22.74 / 23.27
-    # / 23.51 / 23.39 dB at 0.2 / 0.1 / 0.05 / 0.025 (chosen on that benchmark seed).
+    # (a copy moved 40 frames away) blurs nothing. Learning rates: baselines.time_lr (life
+    # peak) and baselines.lifespan_lr (log life span). 0.05 is about 2.5 frames of a 50-frame
+    # sequence either side; synthetic small seed 1, novel-view PSNR* 22.74 / 23.27 / 23.51 / 23.39
+    # dB at 0.2 / 0.1 / 0.05 / 0.025 (chosen on that benchmark seed).
     dynamic_lifespan: float = 0.05
     # Ours: dynamic Gaussians whose object the field moves faster than this (px per frame at a
     # 320 px wide image, scaled with the width) start with a life span shortened in proportion,

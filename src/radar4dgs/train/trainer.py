@@ -66,14 +66,12 @@ from radar4dgs.train.model_init import (
 )
 from radar4dgs.train.objective import image_losses, image_phase, motion_losses, refinement_losses, total_loss
 from radar4dgs.train.optimizers import (
-    gaussian_visibility,
     make_optimizer,
     make_optimizers,
     make_refine_optimizers,
     pose_lr_scale,
     set_learning_rates,
     set_refine_learning_rates,
-    step_optimizers,
 )
 from radar4dgs.train.rigid_actors import start_rigid_actors
 from radar4dgs.train.run_config import run_config_difference, same_run_config
@@ -433,8 +431,9 @@ class Trainer:
         loss.backward()
         trainable = ["sky", "field", "offsets", "appearance", "actors"] + (["static"] if not detach_static else []) + \
             (["dynamic"] if with_dynamic else []) + (["poses"] if pose_lr_scale(config, step) > 0 else [])
-        step_optimizers(state.optimizers, trainable,
-                        gaussian_visibility(render, keep) if config.optim.selective_adam else None)
+        for name in trainable:
+            if name in state.optimizers:
+                state.optimizers[name].step()
         if config.poses.zero_mean:  # the gauge (PoseRefineConfig.zero_mean)
             for part in (state.poses if "poses" in trainable else None, state.appearance):
                 if part is not None:
