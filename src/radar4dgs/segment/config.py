@@ -60,6 +60,21 @@ class CompletionConfig:
 
 
 @dataclass
+class PropagationConfig:
+    """Carry small mask components to neighbouring frames by template matching
+    (``segment/propagate.py``): pedestrians and distant movers the radar prompts in a few frames only."""
+
+    enabled: bool = False
+    frames: int = 5  # follow a component this many frames each way at most
+    min_pixels: float = 8  # components of min_pixels..max_pixels px (at 320 px width; areas scale) are carried
+    max_pixels: float = 400
+    search_px: float = 6  # search window half-size around the predicted place (px at 320 px width)
+    distinct: float = 0.5  # keep a match whose RMS grey error is at most this x the window's median
+    max_overlap: float = 0.5  # stop where more than this share of the footprint is already masked
+    point_margin_px: float = 2  # carry only components with a dynamic radar point within this (px at 320 px)
+
+
+@dataclass
 class SegInferConfig:
     """How ``prepare`` turns radar and images into dynamic masks."""
 
@@ -90,6 +105,7 @@ class SegInferConfig:
     save_prob: bool = True  # also write <frame>_prob.npy (float16 pasted probabilities)
     device: str = "cpu"  # torch device for the network
     completion: CompletionConfig = field(default_factory=CompletionConfig)  # radar-object mask completion
+    propagation: PropagationConfig = field(default_factory=PropagationConfig)  # small components to neighbour frames
 
     PRESETS = {"tiny": {"num_anchors": 4}, "small": {}, "paper": {}}
 

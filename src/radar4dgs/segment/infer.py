@@ -45,6 +45,7 @@ from radar4dgs.segment.patches import (
     resize_patches,
     sample_anchors,
 )
+from radar4dgs.segment.propagate import propagate_masks
 
 # The checkpoint shipped in the package (segment/weights/), and its card.
 DEFAULT_WEIGHTS = "segnet-small.pt"
@@ -222,7 +223,7 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
         (out / FLOW_MASKS).mkdir(exist_ok=True)
     elif (out / FLOW_MASKS).is_dir():
         shutil.rmtree(out / FLOW_MASKS)  # stale flow masks of an earlier run would mislead the flow stage
-    frames, start = [], time.perf_counter()
+    frames, masks, start = [], [], time.perf_counter()
     results = segment_scene(scene, Path(prepared_dir), config, model)
     for i, result in (progress(results) if progress is not None else results):
         name = scene.frames[i].name
@@ -239,9 +240,33 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
         if config.save_prob:  # completed pixels count as certain, so prob > threshold is the PNG
             atomic_save_npy(out / f"{name}_prob.npy", np.maximum(result.prob, mask).astype(np.float16))
         frames.append({"name": name, "anchors": int(len(result.anchors)), "dynamic_pixels": int(mask.sum())})
+        masks.append(mask)
+    if config.propagation.enabled:
+        _write_propagated(scene, Path(prepared_dir), out, masks, frames, config)
     elapsed = time.perf_counter() - start
     summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
                "seconds_per_frame": round(elapsed / max(len(frames), 1), 4),
-               "completion": "off" if objects is None else f"{FLOW_MASKS} masks" if flow_only else "radar objects"}
+               "completion": "off" if objects is None else f"{FLOW_MASKS} masks" if flow_only else "radar objects",
+               "propagation": "small components to neighbouring frames" if config.propagation.enabled else "off"}
     atomic_write_json(out / "summary.json", summary)
     return summary
+
+
+def _write_propagated(scene: Scene, prepared_dir: Path, out: Path, masks: list[np.ndarray], frames: list[dict],
+                      config: SegInferConfig) -> None:
+    """Rewrite the frames whose masks :func:`propagate_masks` grew (PNG, probabilities: carried
+    pixels count as certain) and note the pixels it added in ``frames``."""
+    points = []
+    for i in range(len(scene)):
+        radar = load_radar_frame(scene, i, config.dynamic_source, prepared_dir)
+        points.append(radar.uv[radar.dynamic])
+    carried = propagate_masks([scene.load_image(i) for i in range(len(scene))], masks, points, config.propagation)
+    for mask, grown, record in zip(masks, carried, frames, strict=True):
+        record["propagated_pixels"] = int((grown & ~mask).sum())
+        if not record["propagated_pixels"]:
+            continue
+        record["dynamic_pixels"] = int(grown.sum())
+        atomic_write_bytes(out / f"{record['name']}.png", encode_png(grown))
+        if config.save_prob:
+            prob = np.load(out / f"{record['name']}_prob.npy").astype(np.float32)
+            atomic_save_npy(out / f"{record['name']}_prob.npy", np.maximum(prob, grown).astype(np.float16))
