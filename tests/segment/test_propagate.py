@@ -53,6 +53,13 @@ def test_a_blob_seen_in_one_frame_is_found_in_its_neighbours(dv, du):
         assert (carried[t] == truth[t]).all(), t
 
 
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="search_px > 0"):
+        PropagationConfig(search_px=0)
+    with pytest.raises(ValueError, match="min_pixels <= max_pixels, got 500, 400"):
+        PropagationConfig(min_pixels=500)
+
+
 def test_no_radar_point_no_carrying_and_large_components_stay():
     images, truth = moving_blob((0, 2))
     nothing = [np.zeros((0, 2)) for _ in range(FRAMES)]

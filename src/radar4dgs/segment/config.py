@@ -73,6 +73,15 @@ class PropagationConfig:
     max_overlap: float = 0.5  # stop where more than this share of the footprint is already masked
     point_margin_px: float = 2  # carry only components with a dynamic radar point within this (px at 320 px)
 
+    def __post_init__(self) -> None:
+        if self.frames < 0 or self.search_px <= 0 or self.distinct <= 0 or self.point_margin_px < 0:
+            raise ValueError(f"masks.propagation needs frames >= 0, search_px > 0, distinct > 0 and "
+                             f"point_margin_px >= 0, got {self.frames}, {self.search_px}, {self.distinct}, "
+                             f"{self.point_margin_px}")
+        if not 0 <= self.min_pixels <= self.max_pixels:
+            raise ValueError(f"masks.propagation needs 0 <= min_pixels <= max_pixels, got {self.min_pixels}, "
+                             f"{self.max_pixels}")
+
 
 @dataclass
 class SegInferConfig:
