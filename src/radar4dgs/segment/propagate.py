@@ -19,12 +19,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.segment.config import PropagationConfig
 
 
 def scaled_pixels(value: float, width: int) -> int:
     """A pixel count given for a 320 px wide image, at ``width`` (areas scale with its square)."""
-    return int(round(value * (width / 320.0) ** 2))
+    return int(round(value * (width / IMAGE_MOTION_REFERENCE_WIDTH) ** 2))
 
 
 def match_shift(gray: np.ndarray, template: np.ndarray, template_mask: np.ndarray, top_left: tuple[int, int],
@@ -49,14 +50,14 @@ def match_shift(gray: np.ndarray, template: np.ndarray, template_mask: np.ndarra
 
 
 def follow_component(grays: list[np.ndarray], masks: list[np.ndarray], start: int, component: np.ndarray,
-                     direction: int, config: PropagationConfig) -> list[tuple[int, np.ndarray]]:
+                     direction: int, search: int, config: PropagationConfig) -> list[tuple[int, np.ndarray]]:
     """The footprints ``[(frame, (H, W) bool), ...]`` of ``component`` (H, W) bool of frame ``start``
     in frames ``start + direction``, ``start + 2 direction``, ... (at most ``config.frames``), by
-    :func:`match_shift` of its pixels in frame ``start``; ``masks`` are the network's, unchanged."""
+    :func:`match_shift` of its pixels in frame ``start`` within ``search`` px; ``masks`` are the
+    network's, unchanged."""
     rows, cols = np.nonzero(component)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     template, template_mask = grays[start][r0:r1, c0:c1], component[r0:r1, c0:c1]
-    search = max(1, int(round(config.search_px * grays[start].shape[1] / 320.0)))
     position, velocity, out = (int(r0), int(c0)), (0, 0), []
     for step in range(1, config.frames + 1):
         frame = start + direction * step
@@ -94,9 +95,11 @@ def propagate_masks(images: list[np.ndarray], masks: list[np.ndarray], points: l
     (:func:`follow_component`, both ways). ``images``: (H, W, 3) uint8 RGB in frame order. The
     point keeps the network's stray specks (a patch's region away from its anchor) in their frame."""
     grays = [cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) for image in images]
-    width = grays[0].shape[1] if grays else 320
+    width = grays[0].shape[1] if grays else IMAGE_MOTION_REFERENCE_WIDTH
     low, high = scaled_pixels(config.min_pixels, width), scaled_pixels(config.max_pixels, width)
-    margin = max(0, int(round(config.point_margin_px * width / 320.0)))
+    scale = width / IMAGE_MOTION_REFERENCE_WIDTH
+    margin = max(0, int(round(config.point_margin_px * scale)))
+    search = max(1, int(round(config.search_px * scale)))
     out = [np.array(mask, dtype=bool, copy=True) for mask in masks]
     for start, mask in enumerate(masks):
         count, labels, stats, _ = cv2.connectedComponentsWithStats(np.asarray(mask, np.uint8), connectivity=8)
@@ -107,6 +110,7 @@ def propagate_masks(images: list[np.ndarray], masks: list[np.ndarray], points: l
             if not holds_a_point(component, points[start], margin):
                 continue
             for direction in (1, -1):
-                for frame, footprint in follow_component(grays, masks, start, component, direction, config):
+                for frame, footprint in follow_component(grays, masks, start, component, direction, search,
+                                                        config):
                     out[frame] |= footprint
     return out

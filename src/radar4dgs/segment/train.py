@@ -28,6 +28,7 @@ import torch.nn.functional as F
 
 from radar4dgs.config import save_config, to_dict
 from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
+from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.segment.config import AugmentConfig, SegTrainConfig
 from radar4dgs.segment.dataset import TrainFrame
 from radar4dgs.segment.infer import SegInferConfig, frame_rng, patch_batch, segment_frame
@@ -63,7 +64,7 @@ def augment_radar(radar: RadarFrame, width: int, height: int, config: AugmentCon
     keep = (rng.random(len(radar)) >= rng.uniform(0, config.drop_points) if config.drop_points > 0
             else np.ones(len(radar), bool))
     radar = radar.subset(keep)
-    scale = width / 320.0
+    scale = width / IMAGE_MOTION_REFERENCE_WIDTH
     uv = radar.uv + rng.normal(0, config.misalign_px * scale, size=2) + rng.normal(
         0, config.point_jitter_px * scale, size=radar.uv.shape)
     v = (radar.v_comp + rng.normal(0, config.velocity_noise, size=len(radar)) if config.velocity_noise > 0
