@@ -254,10 +254,10 @@ def summary(rows: list[dict]) -> dict:
     """Means over scenes of the headline numbers (None entries skipped)."""
     from radar4dgs.actors.groundtruth import MIN_VISIBLE_FRAMES
 
-    keys = ("recall", "recall_in_view", "precision", "spurious", "centroid_error_median", "velocity_error_median", "psnr_removed",
-            "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed", "psnr_static_elsewhere",
-            "never_observed_fraction", "never_observed_truth", "never_observed_precision", "never_observed_recall",
-            "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
+    keys = ("recall", "recall_in_view", "precision", "spurious", "centroid_error_median", "velocity_error_median",
+            "psnr_removed", "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed",
+            "psnr_static_elsewhere", "never_observed_fraction", "never_observed_truth", "never_observed_precision",
+            "never_observed_recall", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]

@@ -143,6 +143,6 @@ def score_actors(actors, movers: list[Mover]) -> dict:
             "centroid_error_median": float(np.median(centroid)) if centroid else None,
             "velocity_error_median": float(np.median(velocity)) if velocity else None,
             "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category} for i, j in pairs],
-            "missed": [{"mover": movers[j].id, "class": movers[j].category, "visible_frames": int(len(movers[j].visible)),
-                        "in_view_frames": int(len(movers[j].in_view))}
+            "missed": [{"mover": movers[j].id, "class": movers[j].category,
+                        "visible_frames": int(len(movers[j].visible)), "in_view_frames": int(len(movers[j].in_view))}
                        for j in sorted((counted | counted_in_view) - matched_movers)]}
