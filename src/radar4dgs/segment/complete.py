@@ -67,28 +67,56 @@ def pixel_heights(depth: np.ndarray, K: np.ndarray, cam_to_ego: np.ndarray) -> n
 
 
 def complete_mask(mask: np.ndarray, depth: np.ndarray | None, objects: list[tuple[np.ndarray, np.ndarray]],
-                  K: np.ndarray, cam_to_ego: np.ndarray, config: CompletionConfig) -> np.ndarray:
-    """The base ``mask`` (H, W) bool or-ed with every object's depth- and height-gated hull.
+                  K: np.ndarray, cam_to_ego: np.ndarray, config: CompletionConfig,
+                  small: list[tuple[np.ndarray, np.ndarray]] = ()) -> np.ndarray:
+    """The base ``mask`` (H, W) bool or-ed with every object's depth- and height-gated hull, and with the
+    body-sized window of every ``small`` object (:func:`body_window`).
 
     Args:
         depth: (H, W) metric depth of the frame (the depth stage's), or None (then no completion:
             an ungated hull would swallow the road around the car).
         objects: per object, (M, 2) projected returns and (M,) their depths (:func:`project_points`).
         cam_to_ego: (4, 4) camera (OpenCV axes) to ego transform, for the height gate.
+        small: the same for the objects completed over a body-sized window (``config.small_objects``).
     """
-    if depth is None or not objects:
+    if depth is None or not (objects or small):
         return mask
     out = mask.copy()
-    with np.errstate(invalid="ignore"):
-        above = pixel_heights(depth, K, cam_to_ego) >= config.min_height_m
-    for uv, z in objects:
-        hull = object_hull_mask(uv, z, K, mask.shape, config)
-        if not hull.any():
+    heights = pixel_heights(depth, K, cam_to_ego)
+    regions = [(object_hull_mask(uv, z, K, mask.shape, config), z, np.inf) for uv, z in objects]
+    regions += [(body_window(uv, z, K, mask.shape, config), z, config.body_height_m) for uv, z in small]
+    for region, z, top in regions:
+        if not region.any():
             continue
         near, far = float(np.min(z)) - config.depth_tolerance_m, float(np.max(z)) + config.depth_tolerance_m
         with np.errstate(invalid="ignore"):
-            out |= hull & above & (depth >= near) & (depth <= far)
+            out |= region & (heights >= config.min_height_m) & (heights <= top) & (depth >= near) & (depth <= far)
     return out
+
+
+def body_window(uv: np.ndarray, z: np.ndarray, K: np.ndarray, shape: tuple[int, int],
+                config: CompletionConfig) -> np.ndarray:
+    """(H, W) bool: the image columns within ``body_width_m / 2`` (at the returns' median depth ``z`` (M,))
+    of the mean column of an object's projected returns ``uv`` (M, 2), every row (the height gate of
+    :func:`complete_mask` bounds them). Empty without returns in the image."""
+    window = np.zeros(shape, dtype=bool)
+    if len(uv) == 0:
+        return window
+    centre = float(np.mean(uv[:, 0]))
+    half = 0.5 * config.body_width_m * float(K[0, 0]) / max(float(np.median(z)), 1e-3)
+    low, high = max(int(np.ceil(centre - half)), 0), min(int(np.floor(centre + half)) + 1, shape[1])
+    if high > low and 0 <= np.mean(uv[:, 1]) < shape[0]:
+        window[:, low:high] = True
+    return window
+
+
+def lasting_tracks(objects: list[list], min_frames: int) -> set[int]:
+    """Track ids seen in at least ``min_frames`` frames of ``objects`` (per frame, its radar objects;
+    in the camera's view or not)."""
+    from collections import Counter
+
+    counts = Counter(track for frame in objects for track in {o.track for o in frame})
+    return {track for track, count in counts.items() if count >= min_frames}
 
 
 def frame_objects(scene, index: int, objects: list, min_depth: float = 0.5) -> list[tuple[np.ndarray, np.ndarray]]:

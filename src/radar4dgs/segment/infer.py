@@ -7,7 +7,9 @@
 ``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
 ``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (off by default) and
 ``enabled`` off, the completed masks go to ``<prepared>/masks/flow/<frame>.png`` instead, which only
-the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``).
+the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``). With ``completion.small_objects`` (off by
+default) the masks get a body-sized window at each object of a lasting radar track (a pedestrian's few
+returns span no hull), whatever ``enabled`` says.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from radar4dgs.io.scene import Scene
 from radar4dgs.io.scene_files import FLOW_MASKS
 from radar4dgs.radar.objects import OBJECTS_FILE, load_radar_objects
 from radar4dgs.segment.baseline import BaselineConfig, baseline_frame, depth_for_baseline
-from radar4dgs.segment.complete import complete_mask, frame_objects
+from radar4dgs.segment.complete import complete_mask, frame_objects, lasting_tracks
 from radar4dgs.segment.config import SegInferConfig
 from radar4dgs.segment.dataset import load_radar_frame
 from radar4dgs.segment.model import RadarCameraSegNet, model_from_checkpoint
@@ -199,7 +201,7 @@ def completion_objects(prepared_dir: Path, config: SegInferConfig) -> list | Non
     """The radar objects of every frame for the mask completion, or None when it is off (for the
     masks and for the flow stage) or the prepared folder has no ``radar/objects.json`` (masks made
     without the radar stage: oracle or estimated dynamic points)."""
-    wanted = config.completion.enabled or config.completion.for_flow
+    wanted = config.completion.enabled or config.completion.for_flow or config.completion.small_objects
     if not wanted or not (prepared_dir / "radar" / OBJECTS_FILE).is_file():
         return None
     return load_radar_objects(prepared_dir)
@@ -218,7 +220,10 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     out = Path(out_dir) if out_dir is not None else Path(prepared_dir) / "masks"
     out.mkdir(parents=True, exist_ok=True)
     objects = completion_objects(Path(prepared_dir), config)
-    flow_only = objects is not None and not config.completion.enabled  # completed masks for masks/flow/ alone
+    completion = config.completion
+    hulls = objects is not None and (completion.enabled or completion.for_flow)
+    flow_only = hulls and not completion.enabled  # completed masks for masks/flow/ alone
+    tracks = lasting_tracks(objects, completion.small_track_frames) if objects is not None else set()
     if flow_only:
         (out / FLOW_MASKS).mkdir(exist_ok=True)
     elif (out / FLOW_MASKS).is_dir():
@@ -228,10 +233,13 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     for i, result in (progress(results) if progress is not None else results):
         name = scene.frames[i].name
         mask = result.mask(config.threshold)
-        if objects is not None:
-            completed = complete_mask(mask, depth_for_baseline(scene, i, Path(prepared_dir)),
-                                      frame_objects(scene, i, objects[i]), scene.camera.K, scene.camera.cam_to_ego,
-                                      config.completion)
+        depth = depth_for_baseline(scene, i, Path(prepared_dir)) if objects is not None else None
+        if objects is not None and completion.small_objects:
+            small = frame_objects(scene, i, [o for o in objects[i] if o.track in tracks])
+            mask = complete_mask(mask, depth, [], scene.camera.K, scene.camera.cam_to_ego, completion, small)
+        if hulls:
+            completed = complete_mask(mask, depth, frame_objects(scene, i, objects[i]), scene.camera.K,
+                                      scene.camera.cam_to_ego, completion)
             if flow_only:
                 atomic_write_bytes(out / FLOW_MASKS / f"{name}.png", encode_png(completed))
             else:
@@ -246,7 +254,8 @@ def prepare_masks(scene: Scene, prepared_dir: str | Path, config: SegInferConfig
     elapsed = time.perf_counter() - start
     summary = {"config": to_dict(config), "frames": frames, "seconds": round(elapsed, 3),
                "seconds_per_frame": round(elapsed / max(len(frames), 1), 4),
-               "completion": "off" if objects is None else f"{FLOW_MASKS} masks" if flow_only else "radar objects",
+               "completion": "off" if not hulls else f"{FLOW_MASKS} masks" if flow_only else "radar objects",
+               "small_objects": "radar tracks" if objects is not None and completion.small_objects else "off",
                "propagation": "small components to neighbouring frames" if config.propagation.enabled else "off"}
     atomic_write_json(out / "summary.json", summary)
     return summary
