@@ -4,6 +4,7 @@ at 40 m and a 2 m x 1.4 m car face 8 m ahead whose network mask covers only its 
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from radar4dgs.segment.complete import (
     complete_mask,
@@ -97,6 +98,12 @@ def test_the_body_window_stops_at_body_height_and_body_width():
     columns = np.flatnonzero(out.any(axis=0))
     width_px = config.body_width_m * F / np.median(z)
     assert abs(len(columns) - width_px) <= 1 and abs(columns.mean() - uv[:, 0].mean()) <= 1.0
+
+
+@pytest.mark.parametrize("bad", [{"body_width_m": 0.0}, {"body_height_m": 0.1}, {"small_track_frames": 0}])
+def test_bad_body_window_settings_are_refused_with_their_values(bad):
+    with pytest.raises(ValueError, match="masks.completion needs"):
+        CompletionConfig(**bad)
 
 
 def test_lasting_tracks_are_those_seen_in_enough_frames():

@@ -63,9 +63,15 @@ class CompletionConfig:
     # returns span no hull, and the network marks 20-40 % of the pedestrians' moving pixels on the rush
     # 5 Hz seeds. Independent of `enabled`.
     small_objects: bool = False
-    body_width_m: float = 1.0
-    body_height_m: float = 2.0
-    small_track_frames: int = 3
+    body_width_m: float = 1.0  # small_objects: the window's width (m at the returns' depth)
+    body_height_m: float = 2.0  # small_objects: the window's top (m above the ego ground plane)
+    small_track_frames: int = 3  # small_objects: only objects of tracks seen in at least this many frames
+
+    def __post_init__(self) -> None:
+        if self.body_width_m <= 0 or self.body_height_m <= self.min_height_m or self.small_track_frames < 1:
+            raise ValueError(f"masks.completion needs body_width_m > 0, body_height_m > min_height_m and "
+                             f"small_track_frames >= 1, got {self.body_width_m}, {self.body_height_m} "
+                             f"(min_height_m {self.min_height_m}), {self.small_track_frames}")
 
 
 @dataclass
