@@ -41,7 +41,7 @@ class Mover:
     visible: np.ndarray
 
 
-def own_pixel_counts(scene, frame: int, poses: np.ndarray, dims: np.ndarray) -> np.ndarray:
+def own_pixel_counts(scene, frame: int, poses: np.ndarray, dims: np.ndarray) -> np.ndarray | None:
     """(M,) number of pixels of ``frame``'s gt/dynamic_mask whose gt/depth back-projects inside each of M
     boxes (``poses`` (M, 4, 4) box-to-world at the frame, origin at the bottom centre; ``dims`` (M, 3)
     length, width, height), grown by :data:`OWN_PIXEL_MARGIN`; None when the scene lacks either map."""
