@@ -262,16 +262,14 @@ def summary(rows: list[dict]) -> dict:
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
         out[key] = float(np.mean(values)) if values else None
-    # Which kinds of mover the discovery misses: [matched, missed] per class, summed over the scenes (the
-    # movers `recall` counts; a hidden one the in-view recall alone counts is left out).
+    # Which kinds of mover the discovery misses: [matched, missed] per class, summed over the scenes, of the
+    # movers `recall` counts (one seen in too few frames, matched or not, is left out).
     by_class: dict[str, list[int]] = {}
     for row in rows:
-        for pair in row.get("pairs", []):
-            by_class.setdefault(pair["class"], [0, 0])[0] += 1
-        for miss in row.get("missed", []):
-            if miss["visible_frames"] < MIN_VISIBLE_FRAMES:
-                continue
-            by_class.setdefault(miss["class"], [0, 0])[1] += 1
+        for column, key in ((0, "pairs"), (1, "missed")):
+            for entry in row.get(key, []):
+                if entry.get("visible_frames", MIN_VISIBLE_FRAMES) >= MIN_VISIBLE_FRAMES:
+                    by_class.setdefault(entry["class"], [0, 0])[column] += 1
     out["found_missed_by_class"] = by_class
     return out
 

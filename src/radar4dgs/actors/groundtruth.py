@@ -142,7 +142,8 @@ def score_actors(actors, movers: list[Mover]) -> dict:
             "spurious": len(actors) - len(pairs),
             "centroid_error_median": float(np.median(centroid)) if centroid else None,
             "velocity_error_median": float(np.median(velocity)) if velocity else None,
-            "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category} for i, j in pairs],
+            "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category,
+                       "visible_frames": int(len(movers[j].visible))} for i, j in pairs],
             "missed": [{"mover": movers[j].id, "class": movers[j].category,
                         "visible_frames": int(len(movers[j].visible)), "in_view_frames": int(len(movers[j].in_view))}
                        for j in sorted((counted | counted_in_view) - matched_movers)]}
