@@ -122,14 +122,35 @@ def test_completion_needs_depth_and_enough_returns():
 
 
 
+def masks_of_tiny_run(run, tmp_path, **completion):
+    """prepare_masks (tiny preset, ``completion`` fields set) on a copy of the session's tiny run's radar
+    and depth stages: (scene, prepared folder, summary)."""
+    import shutil
+
+    from radar4dgs.config import preset
+    from radar4dgs.io.scene import read_scene
+    from radar4dgs.segment.config import SegInferConfig
+    from radar4dgs.segment.infer import prepare_masks
+    from radar4dgs.train.fit_motion import torch_threads
+
+    scene = read_scene(run / "scene")
+    prepared = tmp_path / "prepared"
+    for stage in ("radar", "depth"):
+        shutil.copytree(run / "scene" / "prepared" / stage, prepared / stage)
+    config = preset(SegInferConfig, "tiny")
+    for key, value in completion.items():
+        setattr(config.completion, key, value)
+    with torch_threads(1):
+        return scene, prepared, prepare_masks(scene, prepared, config)
+
+
 def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks(tiny_trained_run, tmp_path):
     """CompletionConfig.for_flow: the masks stage writes the completed masks to masks/flow/, the flow
     stage lifts those, the masks everything else reads stay the network's."""
     import json
-    import shutil
 
     from radar4dgs.config import preset
-    from radar4dgs.io.scene import read_mask_png, read_scene
+    from radar4dgs.io.scene import read_mask_png
     from radar4dgs.io.scene_files import FLOW_MASKS
     from radar4dgs.motion.config import FlowConfig
     from radar4dgs.motion.flow import prepare_flow
@@ -137,14 +158,8 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     from radar4dgs.segment.infer import prepare_masks
     from radar4dgs.train.fit_motion import torch_threads
 
-    scene = read_scene(tiny_trained_run / "scene")
-    prepared = tmp_path / "prepared"
-    for stage in ("radar", "depth"):
-        shutil.copytree(tiny_trained_run / "scene" / "prepared" / stage, prepared / stage)
-    config = preset(SegInferConfig, "tiny")
-    config.completion.for_flow = True
+    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path, for_flow=True)
     with torch_threads(1):
-        summary = prepare_masks(scene, prepared, config)
         flow = prepare_flow(scene, prepared, preset(FlowConfig, "tiny"))
     masks = prepared / "masks"
     assert summary["completion"] == "flow masks"
@@ -177,22 +192,9 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
 def test_small_object_windows_only_add_moving_pixels_to_the_networks_masks(tiny_trained_run, tmp_path):
     """CompletionConfig.small_objects through prepare_masks: the network's masks are kept, and the pixels
     the windows add are mostly moving ones (tiny calm seed 4, ground-truth masks)."""
-    import shutil
+    from radar4dgs.io.scene import read_mask_png
 
-    from radar4dgs.config import preset
-    from radar4dgs.io.scene import read_mask_png, read_scene
-    from radar4dgs.segment.config import SegInferConfig
-    from radar4dgs.segment.infer import prepare_masks
-    from radar4dgs.train.fit_motion import torch_threads
-
-    scene = read_scene(tiny_trained_run / "scene")
-    prepared = tmp_path / "prepared"
-    for stage in ("radar", "depth"):
-        shutil.copytree(tiny_trained_run / "scene" / "prepared" / stage, prepared / stage)
-    config = preset(SegInferConfig, "tiny")
-    config.completion.small_objects = True
-    with torch_threads(1):
-        summary = prepare_masks(scene, prepared, config)
+    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path, small_objects=True)
     assert summary["small_objects"] == "radar tracks" and summary["completion"] == "off"
     added = added_true = 0
     for i, frame in enumerate(scene.frames):
