@@ -38,10 +38,11 @@ def occluded_pair(frames: int = 6):
     (columns 48-55, depth 8). Mask: every pixel of a box face."""
     depth = np.full((HEIGHT, WIDTH), 50.0, dtype=np.float32)
     mask = np.zeros((HEIGHT, WIDTH), dtype=np.uint8)
-    boxes = {1: box_pose((25, 44), (20, 39), 30.0, 4.0), 2: box_pose((20, 29), (20, 39), 10.0, 2.0),
-             3: box_pose((50, 52), (10, 19), 30.0, 0.3), 4: box_pose((48, 55), (8, 22), 8.0, 2.0)}
-    for (c0, c1), (r0, r1), near in (((25, 44), (20, 39), 30.0), ((20, 29), (20, 39), 10.0),
-                                     ((48, 55), (8, 22), 8.0)):
+    # id: (columns, rows, near-face depth, length); drawn far to near, so the nearer face wins.
+    faces = {1: ((25, 44), (20, 39), 30.0, 4.0), 3: ((50, 52), (10, 19), 30.0, 0.3),
+             2: ((20, 29), (20, 39), 10.0, 2.0), 4: ((48, 55), (8, 22), 8.0, 2.0)}
+    boxes = {k: box_pose(*faces[k]) for k in sorted(faces)}
+    for (c0, c1), (r0, r1), near, _ in faces.values():
         depth[r0:r1 + 1, c0:c1 + 1] = near
         mask[r0:r1 + 1, c0:c1 + 1] = 255
     objects = [{"id": k, "kind": "moving", "class": "pedestrian" if k == 3 else "car", "dims": dims,
