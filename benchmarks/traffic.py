@@ -1,12 +1,13 @@
 """Benchmark of reconstruction under realistic traffic (issue 21): the bench grid (ours, ours without
-radar, PVG, bspline, ...) on realistic or rush-traffic scenes, with every cell's dynamic-pixel
+radar, PVG, bspline, ...) on calm, realistic or rush-traffic scenes, with every cell's dynamic-pixel
 PSNR split by how far the pixels move in the image, beside each scene's image-motion statistics.
 
-    python benchmarks/traffic.py --seeds 201 --traffic rush [--fps 10] [--methods ours ours-no-radar pvg bspline]
+    python benchmarks/traffic.py --seeds 201 --traffic calm|realistic|rush [--fps 10] [--methods ours ours-no-radar pvg bspline]
                                  [--iterations 600] [--jobs 2] [--work /tmp/radar4dgs-traffic-bench]
                                  [--out benchmarks/results/traffic-rush.json] [--set KEY=VALUE ...]
 
-Seeds are those of benchmarks/motion.py, fixed before any tuning: realistic 10 Hz 101-105 tune,
+Seeds are those of benchmarks/motion.py, fixed before any tuning: calm (the demo's traffic) 1-5 tune;
+realistic 10 Hz 101-105 tune,
 106-110 report; realistic 5 Hz 111-112 report; rush 10 Hz 201-203 tune, 204-208 report;
 rush 5 Hz (the hard set) 209-213 report, 214-223 tune.
 The grid budget is the bench's (600 iterations, init.max_static=30000, densify.max_gaussians=40000,
@@ -77,7 +78,7 @@ def margins(cells: dict[str, dict]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", required=True)
-    parser.add_argument("--traffic", choices=("realistic", "rush"), default="rush")
+    parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="rush")
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--methods", nargs="+", default=["ours", "ours-no-radar", "pvg", "bspline"])

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from radar4dgs.actors.groundtruth import own_pixel_counts, scene_movers, score_actors
+from radar4dgs.actors.groundtruth import Mover, own_pixel_counts, scene_movers, score_actors
 
 WIDTH = HEIGHT = 64
 FOCAL, CENTRE = 20.0, 32.0
@@ -104,3 +104,23 @@ def test_a_few_specks_of_a_mover_are_not_visible(monkeypatch):
     movers = {m.id: m for m in scene_movers(scene)}
     assert len(movers[9].in_view) == 5 and len(movers[9].visible) == 0
     assert len(movers[2].visible) == 5  # 200 own pixels
+
+
+def test_a_spurious_actor_far_from_every_mover_does_not_take_a_good_pair():
+    """Movers at x = 0, 18.4 and -24 m; actors 1 m from the first, 1.4 m from the second, and a stray one
+    40 m from the second. Summed over all ungated distances, a0-M2, a1-M0, a2-M1 (25 + 17 + 40 m) is cheaper
+    than the two good pairs plus the stray's 82 m, so the gate has to come before the assignment."""
+    frames = np.arange(6)
+
+    def along_x(x: float) -> np.ndarray:
+        return np.tile([x, 0.0, 0.0], (len(frames), 1))
+
+    movers = [Mover(id=k, category="car", centre=along_x(x), velocity=np.zeros((6, 3)), in_view=frames, visible=frames)
+              for k, x in enumerate((0.0, 18.4, -24.0))]
+    actors = [SimpleNamespace(id=10 + k, frames=frames, centroid=along_x(x), velocity=np.zeros((6, 3)))
+              for k, x in enumerate((1.0, 17.0, 58.4))]
+    score = score_actors(actors, movers)
+    assert [(p["actor"], p["mover"]) for p in score["pairs"]] == [(10, 0), (11, 1)]
+    assert score["spurious"] == 1 and score["recall"] == 2 / 3
+    assert np.isclose(score["centroid_error_median"], 1.2)
+    assert [m["mover"] for m in score["missed"]] == [2]
