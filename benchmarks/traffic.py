@@ -2,8 +2,9 @@
 radar, PVG, bspline, ...) on calm, realistic or rush-traffic scenes, with every cell's dynamic-pixel
 PSNR split by how far the pixels move in the image, beside each scene's image-motion statistics.
 
-    python benchmarks/traffic.py --seeds 201 --traffic calm|realistic|rush [--fps 10] [--methods ours ours-no-radar pvg bspline]
-                                 [--iterations 600] [--jobs 2] [--work /tmp/radar4dgs-traffic-bench]
+    python benchmarks/traffic.py --seeds 201 --traffic calm|realistic|rush [--fps 10]
+                                 [--methods ours ours-no-radar pvg bspline] [--iterations 600] [--jobs 2]
+                                 [--work /tmp/radar4dgs-traffic-bench]
                                  [--out benchmarks/results/traffic-rush.json] [--set KEY=VALUE ...]
 
 Seeds are those of benchmarks/motion.py, fixed before any tuning: calm (the demo's traffic) 1-5 tune;
