@@ -8,9 +8,8 @@ PSNR split by how far the pixels move in the image, beside each scene's image-mo
                                  [--out benchmarks/results/traffic-rush.json] [--set KEY=VALUE ...]
 
 Seeds are those of benchmarks/motion.py, fixed before any tuning: calm (the demo's traffic) 1-5 tune;
-realistic 10 Hz 101-105 tune,
-106-110 report; realistic 5 Hz 111-112 report; rush 10 Hz 201-203 tune, 204-208 report;
-rush 5 Hz (the hard set) 209-213 report, 214-223 tune.
+realistic 10 Hz 101-105 tune, 106-110 report; realistic 5 Hz 111-112 report; rush 10 Hz 201-203 tune,
+204-208 report; rush 5 Hz (the hard set) 209-213 report, 214-223 tune.
 The grid budget is the bench's (600 iterations, init.max_static=30000, densify.max_gaussians=40000,
 no LPIPS) unless --iterations / --set say otherwise. Cells are `radar4dgs bench` cells under
 --work (finished ones are reused, so an interrupted run continues). Writes the JSON after every
