@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from radar4dgs.radar.config import RadarObjectConfig
 from radar4dgs.radar.objects import detect_objects, track_objects
-from radar4dgs.radar.tracking import _birth, _models, smooth_tracks, track_detections
+from radar4dgs.radar.tracking import _birth, _models, gated_assignment, smooth_tracks, track_detections
 
 J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -156,3 +156,40 @@ def test_a_new_tracks_model_probabilities_are_the_switching_chains_stationary_on
 def test_switch_probabilities_that_do_not_sum_to_one_are_refused():
     with pytest.raises(ValueError, match="turn_start_probability"):
         _models(RadarObjectConfig(turn_start_probability=0.6, gentle_turn_switch_probability=0.5))
+
+
+def _best_gated_pairs(cost: np.ndarray, gate: float) -> tuple[int, float]:
+    """(number of pairs, summed cost) of the best gated assignment, by enumerating every one."""
+    import itertools
+
+    # Enumerate the side with fewer entries against ordered choices of the other (transpose if needed).
+    tall = cost.shape[0] > cost.shape[1]
+    small = cost.T if tall else cost
+    best = (0, 0.0)
+    for chosen in itertools.permutations(range(small.shape[1]), small.shape[0]):
+        kept = [small[r, c] for r, c in enumerate(chosen) if small[r, c] <= gate]
+        candidate = (len(kept), float(sum(kept)))
+        if candidate[0] > best[0] or (candidate[0] == best[0] and candidate[1] < best[1]):
+            best = candidate
+    return best
+
+
+@given(st.integers(1, 4), st.integers(1, 4), st.integers(0, 10_000), st.sampled_from([0.5, 4.0, 18.47]))
+def test_gated_assignment_finds_the_most_gated_pairs_at_the_least_cost(rows, cols, seed, gate):
+    rng = np.random.default_rng(seed)
+    cost = rng.uniform(0.0, 2.5 * gate, size=(rows, cols))
+    cost[rng.random((rows, cols)) < 0.2] = np.inf
+    pairs = gated_assignment(cost, gate)
+    assert len({r for r, _ in pairs}) == len({c for _, c in pairs}) == len(pairs)
+    assert all(cost[r, c] <= gate for r, c in pairs)
+    count, total = _best_gated_pairs(cost, gate)
+    assert len(pairs) == count
+    assert sum(cost[r, c] for r, c in pairs) == pytest.approx(total, abs=1e-9)
+
+
+def test_gated_assignment_does_not_trade_a_good_pair_for_one_beyond_the_gate():
+    # Ungated, the cheapest full assignment is (0, 1) + (1, 0) = 41 (the other one costs inf); dropping the
+    # pair beyond the gate afterwards would leave (1, 0) at 1.0 instead of the better (0, 0) at 0.5.
+    cost = np.array([[0.5, 40.0], [1.0, np.inf]])
+    assert gated_assignment(cost, 4.0) == [(0, 0)]
+    assert gated_assignment(np.zeros((0, 3)), 4.0) == []

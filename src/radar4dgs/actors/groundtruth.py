@@ -25,9 +25,6 @@ OWN_PIXEL_MARGIN = 0.25
 # in view in is below this (m), over at least MIN_COMMON_FRAMES frames.
 MATCH_GATE = 4.0
 MIN_COMMON_FRAMES = 3
-# Cost of a pair outside the gate: equal for all of them and far above any sum of gated distances, so the
-# assignment first maximises the number of gated pairs.
-_OUTSIDE_GATE = 1e6
 
 
 @dataclass
@@ -108,24 +105,16 @@ def scene_movers(scene) -> list[Mover]:
 def match_actors(actors, movers: list[Mover]) -> list[tuple[int, int]]:
     """(actor index, mover index) pairs: the most pairs within :data:`MATCH_GATE` (median planar centre
     distance over at least :data:`MIN_COMMON_FRAMES` common frames), and among those the smallest summed
-    distance (Hungarian matching).
+    distance (:func:`radar4dgs.radar.tracking.gated_assignment`)."""
+    from radar4dgs.radar.tracking import gated_assignment
 
-    The gate is applied before the assignment: with the distances beyond it left in, the solver would
-    trade a good pair for a spurious actor's 40 m "pair" it then throws away."""
-    from scipy.optimize import linear_sum_assignment
-
-    if not actors or not movers:
-        return []
-    cost = np.full((len(actors), len(movers)), _OUTSIDE_GATE)
+    cost = np.full((len(actors), len(movers)), np.inf)
     for i, actor in enumerate(actors):
         for j, mover in enumerate(movers):
             common = np.intersect1d(actor.frames, mover.in_view)
             if len(common) >= MIN_COMMON_FRAMES:
-                distance = np.median(np.linalg.norm(actor.centroid[common, :2] - mover.centre[common, :2], axis=1))
-                if distance <= MATCH_GATE:
-                    cost[i, j] = distance
-    rows, cols = linear_sum_assignment(cost)
-    return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True) if cost[i, j] < _OUTSIDE_GATE]
+                cost[i, j] = np.median(np.linalg.norm(actor.centroid[common, :2] - mover.centre[common, :2], axis=1))
+    return gated_assignment(cost, MATCH_GATE)
 
 
 def score_actors(actors, movers: list[Mover]) -> dict:

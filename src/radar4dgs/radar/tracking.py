@@ -42,7 +42,6 @@ import numpy as np
 from radar4dgs.radar.config import RadarObjectConfig
 
 # Cost of an assignment outside the gate: large but finite, so linear_sum_assignment stays feasible.
-_FORBIDDEN = 1e12
 # 90 degree rotation in the plane: J (x, y) = (-y, x); d R(theta) / d theta = J R(theta).
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -239,20 +238,34 @@ def _imm_update(track: _Track, predicted: np.ndarray, z: np.ndarray, R: np.ndarr
     track.mu = weights / weights.sum()
 
 
+def gated_assignment(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """(row, column) pairs of the (R, C) ``cost`` matrix (non-negative; inf = no pair), each costing at
+    most ``gate``: the most such pairs, and among those the smallest summed cost (Hungarian assignment).
+
+    Pairs beyond the gate are forbidden before the assignment, not dropped after it: left in, the
+    solver would trade a good pair for a costly one it then throws away."""
+    from scipy.optimize import linear_sum_assignment
+
+    if cost.size == 0:
+        return []
+    inside = cost <= gate
+    # Dearer than every gated pair together, so one more gated pair always wins; small enough that
+    # float64 still tells the gated costs apart (a flat 1e12 would not once several are summed).
+    forbidden = (min(cost.shape) + 1) * max(gate, 1.0) + 1.0
+    rows, cols = linear_sum_assignment(np.where(inside, cost, forbidden))
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if inside[r, c]]
+
+
 def _assign(tracks: list[_Track], z: np.ndarray, R: np.ndarray, radar: np.ndarray, gate: float
             ) -> list[tuple[int, int]]:
     """(track position, detection) pairs inside the gate of the tracks' combined predictions (gating on
     the nearer model instead let the turning model's wide prediction take wrong detections), minimising
     the summed squared distance."""
-    from scipy.optimize import linear_sum_assignment
-
     if not tracks or len(z) == 0:
         return []
     states = [t.combined() for t in tracks]
-    cost = np.array([[mahalanobis_sq(x, P, z[j], R[j], radar) for j in range(len(z))] for x, P in states])
-    cost = np.where(cost <= gate, cost, _FORBIDDEN)
-    rows, cols = linear_sum_assignment(cost)
-    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FORBIDDEN]
+    return gated_assignment(np.array([[mahalanobis_sq(x, P, z[j], R[j], radar) for j in range(len(z))]
+                                      for x, P in states]), gate)
 
 
 def _birth(track_id: int, z: np.ndarray, R: np.ndarray, config: RadarObjectConfig) -> _Track:
