@@ -3,6 +3,7 @@
     python benchmarks/actors.py --seeds 106 107 108 109 110 [--traffic realistic] [--fps 5] [--preset tiny]
                                 [--iterations 600] [--work /tmp/radar4dgs-actors-bench]
                                 [--out benchmarks/results/actors.json] [--run RUN ...]
+                                [--discovery-set KEY=VALUE ...]
 
 Seeds fixed before looking, the project's convention: realistic traffic 101-105 tune (the discovery
 thresholds were set on 101 only), 106-110 report; the hard set (``--traffic rush --fps 5``) 214-215 tune
@@ -23,7 +24,9 @@ at --preset, prepared, its background render (the generator's same world without
   layer's PSNR over the pixels no mover covers (the background render equals the frame there).
 
 ``--run RUN`` scores an already trained run of a synthetic scene too (its scene needs gt/background,
-written here when missing). Finished runs under --work are reused. Writes the JSON after every scene.
+written here when missing). ``--discovery-set KEY=VALUE`` discovers with other ActorConfig values
+(``min_gaussians=8``): with ``--seeds`` and ``--run``, a threshold is tried on trained runs without
+training again. Finished runs under --work are reused. Writes the JSON after every scene.
 """
 
 from __future__ import annotations
@@ -189,8 +192,9 @@ def background_scores(run, actors) -> dict:
             "never_observed_recall": both / unseen_count if unseen_count else None}
 
 
-def score_run(run_dir: Path) -> dict:
-    """Actors and background scores of one trained run of a synthetic scene."""
+def score_run(run_dir: Path, discovery=None) -> dict:
+    """Actors and background scores of one trained run of a synthetic scene; ``discovery``: the
+    ActorConfig to discover with (None: the defaults)."""
     from radar4dgs.actors.discover import discover_actors
     from radar4dgs.actors.groundtruth import scene_movers, score_actors
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
@@ -201,7 +205,7 @@ def score_run(run_dir: Path) -> dict:
     if not (run.scene.root / BACKGROUND_DIR).is_dir():
         write_backgrounds(run.scene.root, run.scene.test_indices)
     start = time.perf_counter()
-    actors = discover_actors(run.model, run.scene, load_radar_objects(run.prepared))
+    actors = discover_actors(run.model, run.scene, load_radar_objects(run.prepared), discovery)
     seconds = time.perf_counter() - start
     result = {"run": str(run_dir), "scene": str(run.scene.root), "discovery_seconds": round(seconds, 2),
               "n_dynamic": len(run.model.dynamic) if run.model.dynamic is not None else 0,
@@ -274,6 +278,20 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+def discovery_config(parser: argparse.ArgumentParser, items: list[str]):
+    """The ActorConfig that ``--discovery-set KEY=VALUE ...`` describes (values JSON, else strings)."""
+    from dataclasses import fields, replace
+
+    from radar4dgs.actors.config import ActorConfig
+    from radar4dgs.apps.bench_spec import parse_overrides
+
+    overrides = parse_overrides(items)
+    unknown = sorted(set(overrides) - {f.name for f in fields(ActorConfig)})
+    if unknown:
+        parser.error(f"--discovery-set: {', '.join(unknown)} is not an ActorConfig field (radar4dgs.actors.config)")
+    return replace(ActorConfig(), **overrides)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="*", default=[106, 107, 108, 109, 110])
@@ -286,6 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", type=Path, nargs="*", default=[], help="already trained runs to score too")
     parser.add_argument("--prepare-set", nargs="*", default=[],
                         help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=true)")
+    parser.add_argument("--discovery-set", nargs="*", default=[],
+                        help="ActorConfig fields for discovery, KEY=VALUE (min_gaussians=8); trained runs are reused")
     parser.add_argument("--figure", type=Path, default=None,
                         help="only draw the edit picture of the first --run's actor --figure-actor to this PNG")
     parser.add_argument("--figure-actor", type=int, default=0)
@@ -294,14 +314,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.figure is not None:
         edit_figure(args.run[0], args.figure, args.figure_actor, (-3.5, 0.0), -1.0, tuple(args.figure_frames))
         return 0
+    discovery = discovery_config(parser, args.discovery_set)
     import torch
 
     torch.set_num_threads(1)
     rows: list[dict] = []
+    discovery_settings = {"discovery_set": args.discovery_set} if args.discovery_set else {}
     settings = {"traffic": args.traffic, "fps": args.fps, "preset": args.preset, "iterations": args.iterations,
-                "seeds": args.seeds, "prepare_set": args.prepare_set}
+                "seeds": args.seeds, "prepare_set": args.prepare_set, **discovery_settings}
     # Runs given with --run were trained elsewhere: the preset and iterations here say nothing about them.
-    document = {"settings": settings if args.seeds else {}, "runs": [str(p) for p in args.run], "scenes": rows}
+    document = {"settings": settings if args.seeds else discovery_settings, "runs": [str(p) for p in args.run],
+                "scenes": rows}
     jobs = [(f"s{seed}", seed) for seed in args.seeds] + [(str(path), path) for path in args.run]
     for label, job in jobs:
         start = time.perf_counter()
@@ -310,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = train_scene(scene, args.preset, args.iterations, args.work / "runs" / scene.name)
         else:
             run_dir = job
-        row = {"label": label, **score_run(run_dir), **novel_view_scores(run_dir),
+        row = {"label": label, **score_run(run_dir, discovery), **novel_view_scores(run_dir),
                "seconds": round(time.perf_counter() - start, 1)}
         rows.append(row)
         document["summary"] = summary([r for r in rows if r["label"].startswith("s")])
