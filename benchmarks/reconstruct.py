@@ -24,7 +24,7 @@ frame at its width), and no demo is run (the demo makes calm scenes).
 
 --set KEY=VALUE sets (dotted) TrainConfig fields of every "ours" run, as `radar4dgs bench --set`
 (rigid_actors_at=0.3); use its own --work and --out, the runs are reused by folder.
---prepare-set KEY=VALUE sets (dotted) PrepareConfig fields of every scene: with
+--prepare-set KEY=VALUE sets (dotted) PrepareConfig fields of every scene (the aiMotive clip's too): with
 `depth.source=oracle flow.method=oracle flow.mask_source=oracle` and `--set mask_source=gt` every
 front-end input is the generator's truth, the ceiling of what a better front end can give.
 """
@@ -142,15 +142,17 @@ def resume_check(seed: int, preset_name: str, work: Path, reference: dict) -> di
                                          for k in ("recon_psnr", "nvs_psnr", "nvs_psnr_dyn"))}
 
 
-def aimotive(work: Path, preset_name: str, threads: int | None = None) -> dict:
-    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+def aimotive(work: Path, preset_name: str, threads: int | None = None, prepare_set: list[str] = ()) -> dict:
+    """The real aiMotive fixture converted, prepared (``prepare_set``: dotted PrepareConfig overrides),
+    trained and evaluated under ``work/aimotive``."""
+    from radar4dgs.apps.prepare import run_prepare
     from radar4dgs.datasets.convert.aimotive import convert_aimotive
 
     scene = work / "aimotive" / "scene"
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
         convert_aimotive(FIXTURE, scene, scale=0.25, overwrite=True, progress=False)  # 320x141: 320x176 less the hood
-    run_prepare(scene, None, preset(PrepareConfig, preset_name), progress=False)
+    run_prepare(scene, None, prepare_config(preset_name, prepare_set), progress=False)
     prepare_seconds = time.perf_counter() - started
     result = train_and_eval(scene, scene / "prepared", work / "aimotive" / "ours", preset_name, "ours", threads)
     return {"prepare_seconds": prepare_seconds, **result}
@@ -222,7 +224,7 @@ def main() -> None:
         print("resume:", json.dumps(results["resume"]))
         atomic_write_json(args.out, results)
     if args.aimotive:
-        results["aimotive"] = aimotive(args.work, args.preset, args.threads)
+        results["aimotive"] = aimotive(args.work, args.preset, args.threads, args.prepare_set)
         print("aimotive:", json.dumps(results["aimotive"]))
         atomic_write_json(args.out, results)
 
