@@ -158,7 +158,8 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     from radar4dgs.segment.infer import prepare_masks
     from radar4dgs.train.fit_motion import torch_threads
 
-    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path, for_flow=True)
+    # The network's masks alone (no body windows), so the gain is the hull completion's.
+    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path, for_flow=True, small_objects=False)
     with torch_threads(1):
         flow = prepare_flow(scene, prepared, preset(FlowConfig, "tiny"))
     masks = prepared / "masks"
@@ -194,11 +195,13 @@ def test_small_object_windows_only_add_moving_pixels_to_the_networks_masks(tiny_
     the windows add are mostly moving ones (tiny calm seed 4, ground-truth masks)."""
     from radar4dgs.io.scene import read_mask_png
 
-    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path, small_objects=True)
+    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "windows", small_objects=True)
+    _, plain, plain_summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "network", small_objects=False)
     assert summary["small_objects"] == "radar tracks" and summary["completion"] == "off"
+    assert plain_summary["small_objects"] == "off"
     added = added_true = 0
     for i, frame in enumerate(scene.frames):
-        network = read_mask_png(tiny_trained_run / "scene" / "prepared" / "masks" / f"{frame.name}.png")
+        network = read_mask_png(plain / "masks" / f"{frame.name}.png")
         windows = read_mask_png(prepared / "masks" / f"{frame.name}.png")
         truth = scene.load_optional("gt/dynamic_mask", i)
         assert not (network & ~windows).any()

@@ -7,7 +7,7 @@
 ``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
 ``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (off by default) and
 ``enabled`` off, the completed masks go to ``<prepared>/masks/flow/<frame>.png`` instead, which only
-the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``). With ``completion.small_objects`` (off by
+the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``). With ``completion.small_objects`` (on by
 default) the masks get a body-sized window at each object of a lasting radar track (a pedestrian's few
 returns span no hull), whatever ``enabled`` says.
 """
