@@ -60,7 +60,9 @@ def test_remove_all_leaves_exactly_the_static_layer(setup, one_torch_thread):
     with torch.no_grad():
         edited = removed.render(view, run.config.raster)
         static = run.model.render(view, run.config.raster, include_dynamic=False)
-    assert float(render(run.model, 3)["dynamic"].max()) > 0.9  # there was something to remove
+    # There was something to remove: a car over its pixels (not 1: the tiny run's static layer, trained
+    # for 20 iterations, partly covers it).
+    assert float(render(run.model, 3)["dynamic"].max()) > 0.5
     assert torch.allclose(edited["rgb"], static["rgb"], atol=1e-6)
     assert float(edited["dynamic"].abs().max()) == 0.0
 
@@ -72,7 +74,7 @@ def test_removing_one_actor_leaves_the_others_pixels_unchanged(setup, one_torch_
     # The removed actor's footprint: where it alone has weight (every other actor and nothing else removed).
     alone = render(edit(remove=tuple(others)), 3)["dynamic"]
     untouched = alone < 1e-6
-    assert float(alone.max()) > 0.9 and bool((~untouched).any())
+    assert float(alone.max()) > 0.5 and bool((~untouched).any())
     assert torch.allclose(before["rgb"][untouched], after["rgb"][untouched], atol=1e-6)
     assert float((before["rgb"] - after["rgb"]).abs().max()) > 0.1
 
