@@ -41,7 +41,6 @@ import numpy as np
 
 from radar4dgs.radar.config import RadarObjectConfig
 
-# Cost of an assignment outside the gate: large but finite, so linear_sum_assignment stays feasible.
 # 90 degree rotation in the plane: J (x, y) = (-y, x); d R(theta) / d theta = J R(theta).
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
 
@@ -249,8 +248,8 @@ def gated_assignment(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
     if cost.size == 0:
         return []
     inside = cost <= gate
-    # Dearer than every gated pair together, so one more gated pair always wins; small enough that
-    # float64 still tells the gated costs apart (a flat 1e12 would not once several are summed).
+    # Finite, so the solver stays feasible; dearer than every gated pair together, so one more gated
+    # pair always wins; and near the gated costs' scale, so float64 keeps their differences in the sums.
     forbidden = (min(cost.shape) + 1) * max(gate, 1.0) + 1.0
     rows, cols = linear_sum_assignment(np.where(inside, cost, forbidden))
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if inside[r, c]]
