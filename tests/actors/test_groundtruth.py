@@ -71,12 +71,14 @@ def test_a_hidden_mover_is_in_view_not_visible_and_counts_only_for_the_in_view_r
     assert [len(movers[k].visible) for k in (1, 2, 3, 4)] == [6, 6, 0, 6]
     # One actor on each car and the van, on their centres; nothing on the pedestrian.
     actors = [SimpleNamespace(id=k, frames=np.arange(6), centroid=movers[k].centre.copy(),
-                              velocity=movers[k].velocity.copy()) for k in (1, 2, 4)]
+                              velocity=movers[k].velocity.copy(), category=guess)
+              for k, guess in ((1, "car"), (2, "car"), (4, "truck"))]
     score = score_actors(actors, list(movers.values()))
     assert score["movers"] == 3 and score["movers_in_view"] == 4
     assert score["recall"] == 1.0 and score["recall_in_view"] == 0.75
     assert score["missed"] == [{"mover": 3, "class": "pedestrian", "visible_frames": 0, "in_view_frames": 6}]
     assert score["centroid_error_median"] == 0.0 and score["spurious"] == 0
+    assert score["class_accuracy"] == 2 / 3  # the van (class "car" in the generator) guessed a truck
 
 
 def test_without_ground_truth_maps_visible_is_in_view():
@@ -117,7 +119,7 @@ def test_a_spurious_actor_far_from_every_mover_does_not_take_a_good_pair():
 
     movers = [Mover(id=k, category="car", centre=along_x(x), velocity=np.zeros((6, 3)), in_view=frames, visible=frames)
               for k, x in enumerate((0.0, 18.4, -24.0))]
-    actors = [SimpleNamespace(id=10 + k, frames=frames, centroid=along_x(x), velocity=np.zeros((6, 3)))
+    actors = [SimpleNamespace(id=10 + k, frames=frames, centroid=along_x(x), velocity=np.zeros((6, 3)), category="car")
               for k, x in enumerate((1.0, 17.0, 58.4))]
     score = score_actors(actors, movers)
     assert [(p["actor"], p["mover"]) for p in score["pairs"]] == [(10, 0), (11, 1)]

@@ -84,6 +84,10 @@ class ActorConfig:
     # In the frames where a radar chain supports an actor, its velocity is the radar's (Doppler measures
     # it; the deformation field of a short training learns it roughly); elsewhere its Gaussians'.
     radar_velocity: bool = True
+    # A car-like actor's centre is completed to this footprint (length, width; m), away from the camera,
+    # where less of it was seen: its Gaussians are those of the faces the camera saw, so their centroid
+    # sits on the camera's side of the body. A common car's size; 0 0 keeps the Gaussians' centroid.
+    car_size: tuple[float, float] = (4.4, 1.8)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         # One set of values for every size: the thresholds are metres in the world, not pixels.

@@ -30,6 +30,8 @@
    in the camera's view), size and a class guess from the footprint of its opaque Gaussians, and the
    radar objects (``<prepared>/radar/objects.json``) whose centroids fall inside the footprint of its
    Gaussians that render there.
+9. **Body centres.** A car-like actor's centroid is that of the faces the camera saw; it becomes the
+   centre of a ``car_size`` body anchored at those faces (:mod:`radar4dgs.actors.amodal`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from radar4dgs.actors.amodal import completed_centres, is_car_like
 from radar4dgs.actors.config import ActorConfig
 from radar4dgs.actors.radar_cues import (
     RadarChains,
@@ -411,6 +414,11 @@ def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None
         groups += radar_seeded([actors[k] for k in keep], groups, active, radar, trajectories, opacities, config)
     actors = [a for a in build(groups) if is_actor(a, config) and radar_supported(a, radar, config)]
     actors.sort(key=lambda a: -len(a.gaussians))
+    camera_positions = np.linalg.inv(cameras[0])[:, :3, 3]
     for k, actor in enumerate(actors):
         actor.id = k
+        if is_car_like(actor.size) and min(config.car_size) > 0:
+            actor.centroid = completed_centres(trajectories[actor.gaussians], opacities[actor.gaussians],
+                                               actor.centroid, actor.heading, camera_positions,
+                                               config.car_size, config.min_opacity)
     return actors

@@ -121,7 +121,8 @@ def score_actors(actors, movers: list[Mover]) -> dict:
     """Recall over the counted movers (visible in >= MIN_VISIBLE_FRAMES frames) and, as ``recall_in_view``,
     over those in view in as many (hidden ones included), precision over the actors, spurious actors
     (matched to nothing, counted movers or not), median planar centroid and velocity errors over every
-    common frame in view of the matched pairs; ``missed``, the movers either rule counts that no actor
+    common frame in view of the matched pairs, the share of matched actors whose class guess is the
+    mover's class (``class_accuracy``); ``missed``, the movers either rule counts that no actor
     matched (id, class, frames visible and in view)."""
     counted = {j for j, m in enumerate(movers) if len(m.visible) >= MIN_VISIBLE_FRAMES}
     counted_in_view = {j for j, m in enumerate(movers) if len(m.in_view) >= MIN_VISIBLE_FRAMES}
@@ -140,8 +141,11 @@ def score_actors(actors, movers: list[Mover]) -> dict:
             "spurious": len(actors) - len(pairs),
             "centroid_error_median": float(np.median(centroid)) if centroid else None,
             "velocity_error_median": float(np.median(velocity)) if velocity else None,
+            "class_accuracy": (sum(actors[i].category == movers[j].category for i, j in pairs) / len(pairs)
+                               if pairs else None),
             "pairs": [{"actor": actors[i].id, "mover": movers[j].id, "class": movers[j].category,
-                       "visible_frames": int(len(movers[j].visible))} for i, j in pairs],
+                       "guess": actors[i].category, "visible_frames": int(len(movers[j].visible))}
+                      for i, j in pairs],
             "missed": [{"mover": movers[j].id, "class": movers[j].category,
                         "visible_frames": int(len(movers[j].visible)), "in_view_frames": int(len(movers[j].in_view))}
                        for j in sorted((counted | counted_in_view) - matched_movers)]}
