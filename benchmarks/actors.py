@@ -259,6 +259,7 @@ def summary(rows: list[dict]) -> dict:
     from radar4dgs.actors.groundtruth import MIN_VISIBLE_FRAMES
 
     keys = ("recall", "recall_in_view", "precision", "spurious", "centroid_error_median", "velocity_error_median",
+            "class_accuracy",
             "psnr_removed", "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed",
             "psnr_static_elsewhere", "never_observed_fraction", "never_observed_truth", "never_observed_precision",
             "never_observed_recall", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
