@@ -29,6 +29,14 @@ def is_car_like(size: tuple[float, float, float]) -> bool:
     return size[0] >= CAR_LIKE_LENGTH or size[1] >= CAR_LIKE_WIDTH
 
 
+def planar_extent(xy: np.ndarray, heading: float) -> tuple[np.ndarray, np.ndarray]:
+    """(low (2,), high (2,)): the 5-95 % extents of planar points ``xy`` (K, 2) along ``heading`` (rad
+    about world z) and across it (a few stray Gaussians do not stretch the body)."""
+    c, s = np.cos(heading), np.sin(heading)
+    local = xy @ np.array([[c, -s], [s, c]])
+    return np.percentile(local, 5, axis=0), np.percentile(local, 95, axis=0)
+
+
 def completed_centres(points: np.ndarray, weights: np.ndarray, centroid: np.ndarray, heading: np.ndarray,
                       camera_positions: np.ndarray, prior: tuple[float, float], min_opacity: float) -> np.ndarray:
     """(F, 3) body centres of a body whose points (K, F, 3) render with opacities ``weights`` (K, F),
@@ -47,10 +55,8 @@ def completed_centres(points: np.ndarray, weights: np.ndarray, centroid: np.ndar
             continue
         c, s = np.cos(heading[f]), np.sin(heading[f])
         to_body = np.array([[c, s], [-s, c]])  # world planar -> (along heading, across it)
-        local = (points[opaque, f, :2] - centroid[f, :2]) @ to_body.T
-        low, high = np.percentile(local, 5, axis=0), np.percentile(local, 95, axis=0)
-        # Percentiles, so that a few stray Gaussians do not stretch the body; on a uniformly covered face
-        # they span SPAN of it, so the extent is widened back to the whole face.
+        low, high = planar_extent(points[opaque, f, :2] - centroid[f, :2], heading[f])
+        # On a uniformly covered face the percentiles span SPAN of it: widened back to the whole face.
         middle, extent = (low + high) / 2, (high - low) / SPAN
         camera = to_body @ (camera_positions[f, :2] - centroid[f, :2])
         ray = camera / max(float(np.linalg.norm(camera)), 1e-9)

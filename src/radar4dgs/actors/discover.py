@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from radar4dgs.actors.amodal import completed_centres, is_car_like
+from radar4dgs.actors.amodal import completed_centres, is_car_like, planar_extent
 from radar4dgs.actors.config import ActorConfig
 from radar4dgs.actors.radar_cues import (
     RadarChains,
@@ -52,6 +52,7 @@ from radar4dgs.actors.radar_cues import (
     seed_members,
     support,
 )
+from radar4dgs.model.pose_refine import camera_centres
 
 # Slower than this (m/s), the velocity's direction is noise: the heading is held from a faster frame.
 HEADING_SPEED = 1.0
@@ -202,9 +203,7 @@ def headings(velocity: np.ndarray, points: np.ndarray) -> np.ndarray:
 def footprint_size(points: np.ndarray, heading: float) -> tuple[float, float, float]:
     """(length, width, height) metres of points (K, 3) in a body frame of ``heading``: 5-95 % extents
     (a few stray Gaussians do not stretch the box)."""
-    c, s = np.cos(heading), np.sin(heading)
-    local = points[:, :2] @ np.array([[c, -s], [s, c]])
-    low, high = np.percentile(local, 5, axis=0), np.percentile(local, 95, axis=0)
+    low, high = planar_extent(points[:, :2], heading)
     z_low, z_high = np.percentile(points[:, 2], [5, 95])
     return float(high[0] - low[0]), float(high[1] - low[1]), float(z_high - z_low)
 
@@ -414,7 +413,7 @@ def discover_actors(model, scene, radar_objects=None, config: ActorConfig | None
         groups += radar_seeded([actors[k] for k in keep], groups, active, radar, trajectories, opacities, config)
     actors = [a for a in build(groups) if is_actor(a, config) and radar_supported(a, radar, config)]
     actors.sort(key=lambda a: -len(a.gaussians))
-    camera_positions = np.linalg.inv(cameras[0])[:, :3, 3]
+    camera_positions = camera_centres(cameras[0])
     for k, actor in enumerate(actors):
         actor.id = k
         if is_car_like(actor.size) and min(config.car_size) > 0:
