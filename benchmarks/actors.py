@@ -129,14 +129,14 @@ def ground_truth_visibility(run) -> list:
 
 
 def background_scores(run, actors) -> dict:
-    """PSNR over the test frames' moving-object pixels: every actor removed vs the background render,
-    the unedited render vs it, and what `radar4dgs render --remove-actors all` writes (the never-observed
-    pixels filled); the fraction of those pixels marked never observed, and how that mask agrees with the
-    truth."""
+    """PSNR over the test frames' moving-object pixels: every actor removed vs the background render
+    (with the repaired sky map `radar4dgs render` uses, and with the sky as trained), the unedited render
+    vs it, and what `radar4dgs render --remove-actors all` writes (the never-observed pixels filled); the
+    fraction of those pixels marked never observed, and how that mask agrees with the truth."""
     import cv2
     import torch
 
-    from radar4dgs.actors.background import never_observed_mask, training_visibility
+    from radar4dgs.actors.background import background_sky, never_observed_mask, training_visibility
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import ActorEdits
     from radar4dgs.apps.render import Unobserved
@@ -146,12 +146,14 @@ def background_scores(run, actors) -> dict:
     from radar4dgs.model.view import frame_view
 
     scene, times = run.scene, normalized_times(run.scene)
-    removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
+    removed_trained_sky = edited_model(run.model, actors, ActorEdits(remove_all=True), times)
+    removed = edited_model(run.model, actors, ActorEdits(remove_all=True), times, sky=background_sky(run))
     visibility = training_visibility(run, scale=1.0)
     rendered_fill = Unobserved.of(run, run.model, fill=True)
     truth_views = ground_truth_visibility(run)
     generator = scene_config(scene.root)
-    sums = {"removed": 0.0, "kept": 0.0, "observed": 0.0, "elsewhere": 0.0, "filled": 0.0}
+    sums = {"removed": 0.0, "removed_trained_sky": 0.0, "filled_trained_sky": 0.0, "kept": 0.0, "observed": 0.0,
+            "elsewhere": 0.0, "filled": 0.0}
     count = never = elsewhere = unseen_count = both = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
@@ -163,7 +165,8 @@ def background_scores(run, actors) -> dict:
         with torch.no_grad():
             edited = removed.render(view, run.config.raster)
             full = run.model.render(view, run.config.raster)
-        for key, out in (("removed", edited), ("kept", full)):
+            trained_sky = removed_trained_sky.render(view, run.config.raster)
+        for key, out in (("removed", edited), ("kept", full), ("removed_trained_sky", trained_sky)):
             rgb = out["rgb"].clamp(0, 1).double().cpu().numpy()
             sums[key] += float(((rgb - background)[mask] ** 2).sum() / 3)
         count += int(mask.sum())
@@ -178,12 +181,15 @@ def background_scores(run, actors) -> dict:
         sums["elsewhere"] += float(((rgb - background)[~mask] ** 2).sum() / 3)
         elsewhere += int((~mask).sum())
         fill = rendered_fill.mask(run, view, edited)
-        written = to_uint8(edited["rgb"])
-        if fill.any():
-            written = cv2.inpaint(written, fill.astype(np.uint8), 3, cv2.INPAINT_TELEA)
-        sums["filled"] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
+        for key, out in (("filled", edited), ("filled_trained_sky", trained_sky)):
+            written = to_uint8(out["rgb"])
+            if fill.any():
+                written = cv2.inpaint(written, fill.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+            sums[key] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
     return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
+            "psnr_removed_trained_sky": psnr(sums["removed_trained_sky"], count),
             "psnr_removed_filled": psnr(sums["filled"], count),
+            "psnr_removed_filled_trained_sky": psnr(sums["filled_trained_sky"], count),
             "psnr_removed_observed": psnr(sums["observed"], count - never),
             "psnr_static_elsewhere": psnr(sums["elsewhere"], elsewhere),
             "pixels": count, "never_observed_fraction": never / count if count else None,
@@ -261,6 +267,7 @@ def summary(rows: list[dict]) -> dict:
     keys = ("recall", "recall_in_view", "precision", "spurious", "centroid_error_median", "velocity_error_median",
             "class_accuracy",
             "psnr_removed", "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed",
+            "psnr_removed_trained_sky", "psnr_removed_filled_trained_sky",
             "psnr_static_elsewhere", "never_observed_fraction", "never_observed_truth", "never_observed_precision",
             "never_observed_recall", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}

@@ -1,10 +1,22 @@
-"""Never-observed pixels (radar4dgs.actors.background) on a closed-form camera and ground plane."""
+"""Never-observed pixels (radar4dgs.actors.background) on a closed-form camera and ground plane, and the
+sky map's repair behind removed actors."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from radar4dgs.actors.background import TrainingView, backproject, seen_in
+from radar4dgs.actors.background import (
+    TrainingView,
+    background_sky,
+    backproject,
+    repaired_sky,
+    seen_in,
+    sky_fit_weights,
+    trusted_texels,
+)
 
 K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
 # A camera 1.5 m above the ground looking along world +x (OpenCV axes: x right, y down, z forward).
@@ -46,3 +58,68 @@ def test_the_default_tolerance_accepts_a_rough_static_surface_that_a_tight_one_r
     rough = TrainingView(W2C, K, depth * 1.15, np.zeros_like(depth))
     assert seen_in(point, rough).all()
     assert not seen_in(point, rough, tolerance=(0.05, 0.3)).any()
+
+
+def test_sky_fit_weights_split_a_texel_centre_ray_between_clean_and_dynamic_pixels():
+    from radar4dgs.model.sky import SkyEnvironment
+
+    sky = SkyEnvironment(8, 16)
+    centres = sky.texel_directions().double().numpy()
+    # Two pixels on texel (3, 5)'s centre (one clean, sky share 0.8; one under a car, 0.4) and one on (4, 9).
+    directions = np.stack([centres[3, 5], centres[3, 5], centres[4, 9]])[None]
+    clean, total = sky_fit_weights(sky, directions, np.array([[True, False, True]]), np.array([[0.8, 0.4, 1.0]]))
+    texel = 3 * 16 + 5
+    assert total[texel] == pytest.approx(1.2, abs=1e-6) and clean[texel] == pytest.approx(0.8, abs=1e-6)
+    assert total[4 * 16 + 9] == pytest.approx(1.0, abs=1e-6)
+    assert total.sum() == pytest.approx(2.2, abs=1e-6)
+    trusted = trusted_texels(clean, total)
+    assert trusted[texel] and trusted[4 * 16 + 9] and (trusted & (total > 1e-6)).sum() == 2  # float32 lookup
+    assert not trusted_texels(clean, total, share=0.7)[texel]  # 0.8 / 1.2 of its fit was clean
+
+
+@given(st.integers(0, 2**32 - 1))
+@settings(max_examples=20, deadline=None)
+def test_repaired_sky_gives_each_untrusted_texel_the_nearest_trusted_colour(seed):
+    import torch
+
+    from radar4dgs.model.sky import SkyEnvironment
+
+    rng = np.random.default_rng(seed)
+    sky = SkyEnvironment(6, 10)
+    with torch.no_grad():
+        sky.logits.copy_(torch.as_tensor(rng.normal(size=(3, 6, 10)), dtype=torch.float32))
+    trusted = rng.random((6, 10)) < 0.4
+    trusted[rng.integers(6), rng.integers(10)] = True
+    before = sky.logits.detach().clone()
+    out = repaired_sky(sky, trusted).logits.detach()
+    assert torch.equal(sky.logits.detach(), before)  # the run's own map is left alone
+    rows, cols = np.nonzero(trusted)
+    for r in range(6):
+        for c in range(10):
+            if trusted[r, c]:
+                assert torch.equal(out[:, r, c], before[:, r, c])
+                continue
+            distance = (rows - r) ** 2 + (cols - c) ** 2
+            nearest = np.flatnonzero(distance == distance.min())
+            assert any(torch.equal(out[:, r, c], before[:, rows[k], cols[k]]) for k in nearest)
+
+
+def test_background_sky_keeps_the_trained_sky_where_the_sky_was_seen_clear(oracle, one_torch_thread):
+    import torch
+
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.sky import camera_ray_directions
+    from radar4dgs.model.view import frame_view
+
+    run = oracle.run
+    before = run.model.sky.logits.detach().clone()
+    repaired = background_sky(run)
+    assert torch.equal(run.model.sky.logits.detach(), before)
+    view = frame_view(run.scene, run.scene.train_indices[0], 1.0, normalized_times(run.scene))
+    with torch.no_grad():
+        full = run.model.render(view, run.config.raster)
+        directions = camera_ray_directions(view.K, view.world_to_camera, view.height, view.width)
+        clear = ((full["alpha"] < 0.05) & (full["dynamic"] < 0.01)).numpy()
+        assert clear.sum() > 100  # the tiny scene shows sky
+        change = (repaired(directions) - run.model.sky(directions)).abs().max(-1).values.numpy()
+    assert np.quantile(change[clear], 0.99) < 1e-6

@@ -28,12 +28,14 @@ from radar4dgs.model.scene_model import SceneModel
 
 
 class EditedSceneModel(SceneModel):
-    """A :class:`SceneModel` sharing another's Gaussians, field and sky, whose :meth:`gaussians_at`
-    applies actor edits to the dynamic Gaussians; renders, masks and depth follow unchanged."""
+    """A :class:`SceneModel` sharing another's Gaussians and field (and its sky unless given one), whose
+    :meth:`gaussians_at` applies actor edits to the dynamic Gaussians; renders, masks and depth follow
+    unchanged."""
 
-    def __init__(self, model: SceneModel, removed, moved, retimed, frame_times: np.ndarray, duration: float):
-        super().__init__(model.static, model.sky, model.field, model.dynamic, model.offsets, model.baseline,
-                         model.actor_motion)
+    def __init__(self, model: SceneModel, removed, moved, retimed, frame_times: np.ndarray, duration: float,
+                 sky=None):
+        super().__init__(model.static, model.sky if sky is None else sky, model.field, model.dynamic,
+                         model.offsets, model.baseline, model.actor_motion)
         self.removed = removed  # (K,) long tensor of dynamic indices, or None
         self.moved = moved  # [(indices, heading (F,), (lateral, longitudinal))]
         self.retimed = retimed  # {actor id: (indices, kind, value)}
@@ -73,10 +75,11 @@ class EditedSceneModel(SceneModel):
 
 
 def edited_model(model: SceneModel, actors, edits: ActorEdits, frame_times: np.ndarray,
-                 duration: float = 1.0) -> SceneModel:
+                 duration: float = 1.0, sky=None) -> SceneModel:
     """``model`` with ``edits`` applied to ``actors`` (the :class:`~radar4dgs.actors.discover.Actor`
     list of its run), or ``model`` itself when there are none. ``frame_times`` (F,) normalised times
-    of the actors' per-frame headings; ``duration`` the scene's length (s) for ``+SECONDS`` shifts."""
+    of the actors' per-frame headings; ``duration`` the scene's length (s) for ``+SECONDS`` shifts;
+    ``sky`` a sky map to render with instead of the model's (:func:`~radar4dgs.actors.background.background_sky`)."""
     import torch
 
     if edits.empty:
@@ -98,4 +101,4 @@ def edited_model(model: SceneModel, actors, edits: ActorEdits, frame_times: np.n
         members = retimed[i][0] if i in retimed else indices(i)
         heading = np.unwrap(np.asarray(by_id[i].heading, dtype=np.float64))
         moved.append((members, heading, offset, id(members)))
-    return EditedSceneModel(model, removed, moved, retimed, frame_times, duration).eval()
+    return EditedSceneModel(model, removed, moved, retimed, frame_times, duration, sky).eval()

@@ -25,7 +25,8 @@ each repeatable and combinable with every trajectory. They change the actors' Ga
 picture. The slug gets the edits appended (``recorded_rm-all``, ``recorded_mv2_3.5,0``), and each frame
 gets ``<00000>_never_observed.png``: the pixels an actor left (dynamic in the unedited render, not in the
 edited one) whose static surface no training frame saw (:mod:`radar4dgs.actors.background`); those
-pixels are filled from their surroundings (OpenCV inpainting) unless ``--no-fill-unobserved``.
+pixels are filled from their surroundings (OpenCV inpainting), and the sky map's texels that only dynamic
+objects fitted take the colour of the nearest ones that the sky itself did, unless ``--no-fill-unobserved``.
 """
 
 from __future__ import annotations
@@ -160,11 +161,13 @@ def _check_options(trajectory: str, interpolate: int, scale: float, fps: float) 
     read_camera_path(path)
 
 
-def edit_run(run, edits: ActorEdits | None):
+def edit_run(run, edits: ActorEdits | None, repair_sky: bool = True):
     """(the run with its model edited, the unedited model) for ``edits`` of its actors (RUN/actors.json,
-    found when missing); ``(run, None)`` without edits. Raises ValueError naming an unknown actor id."""
+    found when missing); ``(run, None)`` without edits. ``repair_sky``: render with
+    :func:`~radar4dgs.actors.background.background_sky`. Raises ValueError naming an unknown actor id."""
     from dataclasses import replace
 
+    from radar4dgs.actors.background import background_sky
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import check_ids
     from radar4dgs.actors.store import ACTORS_FILE, run_actors
@@ -174,7 +177,8 @@ def edit_run(run, edits: ActorEdits | None):
         return run, None
     actors = run_actors(run) if edits.ids() or not edits.remove_all else []
     check_ids(edits, actors, str(run.root / ACTORS_FILE))
-    model = edited_model(run.model, actors, edits, normalized_times(run.scene), run.scene.duration)
+    sky = background_sky(run) if repair_sky else None
+    model = edited_model(run.model, actors, edits, normalized_times(run.scene), run.scene.duration, sky)
     return replace(run, model=model), run.model
 
 
@@ -193,7 +197,7 @@ def render_trajectory(run_dir, trajectory: str = "recorded", *, interpolate: int
 
     _check_options(trajectory, interpolate, scale, fps)  # a bad spec or file fails before the model loads
     run = run_dir if isinstance(run_dir, Run) else load_run(run_dir, device)
-    run, unedited = edit_run(run, edits)
+    run, unedited = edit_run(run, edits, fill_unobserved)
     slug, views = trajectory_views(run, trajectory, interpolate, scale)
     if unedited is not None:
         slug = f"{slug}_{edits.slug()}"
@@ -323,7 +327,8 @@ class RenderCommand:
     # Re-time an actor: ID:SCALE (its time runs SCALE times as fast) or ID:+SECONDS / ID:-SECONDS
     # (later / earlier).
     retime_actor: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
-    # Inpaint the never-observed pixels an edited actor leaves (their mask is written either way).
+    # Inpaint the never-observed pixels an edited actor leaves (their mask is written either way) and
+    # repair the sky map behind the actors.
     fill_unobserved: bool = True
     # Torch intra-op threads (0 = torch's default; 1 is much faster on a machine busy with other jobs).
     threads: int = 0

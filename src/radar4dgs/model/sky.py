@@ -67,10 +67,9 @@ class SkyEnvironment(nn.Module):
         lat, phi = torch.meshgrid(lat, phi, indexing="ij")
         return torch.stack([lat.cos() * phi.cos(), lat.cos() * phi.sin(), lat.sin()], dim=-1)
 
-    def forward(self, directions: Tensor) -> Tensor:
-        """(..., 3) world directions (normalised here) -> (..., 3) rgb in [0, 1], differentiable in
-        the map (not in the directions' angles at the poles)."""
-        shape = directions.shape[:-1]
+    def texel_weights(self, directions: Tensor) -> tuple[Tensor, Tensor]:
+        """The bilinear lookup of (..., 3) world ``directions`` (normalised here): ``index`` (4, M) long
+        flat texel indices (row * W + column) and ``weights`` (4, M), M the number of directions."""
         d = directions.reshape(-1, 3).to(self.logits.dtype)
         d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         H, W = self.height, self.width
@@ -88,11 +87,18 @@ class SkyEnvironment(nn.Module):
         c1 = torch.remainder(c0 + 1, W)
         r0 = y0.long() * W
         r1 = r0 + W
-        index = torch.stack([r0 + c0, r0 + c1, r1 + c0, r1 + c1])  # (4, M)
-        weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])  # (4, M)
+        index = torch.stack([r0 + c0, r0 + c1, r1 + c0, r1 + c1])
+        weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+        return index, weights
+
+    def forward(self, directions: Tensor) -> Tensor:
+        """(..., 3) world directions (normalised here) -> (..., 3) rgb in [0, 1], differentiable in
+        the map (not in the directions' angles at the poles)."""
+        shape = directions.shape[:-1]
+        index, weights = self.texel_weights(directions)
         # index_select: its backward (index_add) sums repeated texels in a fixed order, whatever the
         # thread count, so a resumed run on other threads matches (advanced indexing does not).
-        texels = torch.sigmoid(self.logits.reshape(3, H * W).index_select(1, index.reshape(-1)))
+        texels = torch.sigmoid(self.logits.reshape(3, -1).index_select(1, index.reshape(-1)))
         texels = texels.reshape(3, 4, -1)  # (3, 4, M)
         return (texels * weights).sum(dim=1).T.reshape(*shape, 3)
 
