@@ -80,3 +80,15 @@ def test_eval_finds_the_actors_and_its_report_shows_them(oracle):
     assert main(["eval", str(oracle.root), "--no-video", "--no-lpips"]) == 0
     assert len(json.loads((oracle.root / "actors.json").read_text())["actors"]) == 3
     assert "<h2>Actors</h2>" in (oracle.root / "report.html").read_text()
+
+
+def test_edited_renders_use_the_repaired_sky_unless_told_not_to(oracle):
+    from radar4dgs.actors.background import background_sky
+    from radar4dgs.apps.render import edit_run
+
+    edits = parse_edits(["all"])
+    repaired, unedited = edit_run(oracle.run, edits)
+    raw, _ = edit_run(oracle.run, edits, repair_sky=False)  # --no-fill-unobserved
+    assert unedited is oracle.run.model and raw.model.sky is oracle.run.model.sky
+    assert repaired.model.sky is not oracle.run.model.sky
+    assert torch.equal(repaired.model.sky.logits, background_sky(oracle.run).logits)
