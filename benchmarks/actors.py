@@ -153,8 +153,8 @@ def background_scores(run, actors) -> dict:
     truth_views = ground_truth_visibility(run)
     generator = scene_config(scene.root)
     sums = {"removed": 0.0, "removed_trained_sky": 0.0, "filled_trained_sky": 0.0, "kept": 0.0, "observed": 0.0,
-            "elsewhere": 0.0, "filled": 0.0}
-    count = never = elsewhere = unseen_count = both = 0
+            "elsewhere": 0.0, "filled": 0.0, "truly_unseen": 0.0, "truly_seen": 0.0, "sky_behind": 0.0}
+    count = never = elsewhere = unseen_count = both = sky_count = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
         if not mask.any():
@@ -172,10 +172,17 @@ def background_scores(run, actors) -> dict:
         count += int(mask.sum())
         unseen = never_observed_mask(run, view, mask, visibility)
         never += int(unseen.sum())
-        truth = truly_unseen(view, background_frame(generator, i).depth, mask, truth_views)
+        background_depth = background_frame(generator, i).depth
+        truth = truly_unseen(view, background_depth, mask, truth_views)
         unseen_count += int(truth.sum())
         both += int((truth & unseen).sum())
         rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
+        # Where the error sits: surfaces no training frame saw, surfaces some did, and sky behind the movers.
+        sky_behind = mask & ~np.isfinite(background_depth)
+        for key, where in (("truly_unseen", truth), ("truly_seen", mask & ~truth & ~sky_behind),
+                           ("sky_behind", sky_behind)):
+            sums[key] += float(((rgb - background)[where] ** 2).sum() / 3)
+        sky_count += int(sky_behind.sum())
         sums["observed"] += float(((rgb - background)[mask & ~unseen] ** 2).sum() / 3)
         # The same static layer where nothing moves, against the recorded frame: its quality elsewhere.
         sums["elsewhere"] += float(((rgb - background)[~mask] ** 2).sum() / 3)
@@ -192,6 +199,10 @@ def background_scores(run, actors) -> dict:
             "psnr_removed_filled_trained_sky": psnr(sums["filled_trained_sky"], count),
             "psnr_removed_observed": psnr(sums["observed"], count - never),
             "psnr_static_elsewhere": psnr(sums["elsewhere"], elsewhere),
+            "psnr_removed_truly_unseen": psnr(sums["truly_unseen"], unseen_count),
+            "psnr_removed_truly_seen": psnr(sums["truly_seen"], count - unseen_count - sky_count),
+            "psnr_removed_sky_behind": psnr(sums["sky_behind"], sky_count),
+            "sky_behind_fraction": sky_count / count if count else None,
             "pixels": count, "never_observed_fraction": never / count if count else None,
             "never_observed_truth": unseen_count / count if count else None,
             "never_observed_precision": both / never if never else None,
@@ -267,7 +278,8 @@ def summary(rows: list[dict]) -> dict:
     keys = ("recall", "recall_in_view", "precision", "spurious", "centroid_error_median", "velocity_error_median",
             "class_accuracy",
             "psnr_removed", "psnr_kept", "gain_db", "psnr_removed_filled", "psnr_removed_observed",
-            "psnr_removed_trained_sky", "psnr_removed_filled_trained_sky",
+            "psnr_removed_trained_sky", "psnr_removed_filled_trained_sky", "psnr_removed_truly_unseen",
+            "psnr_removed_truly_seen", "psnr_removed_sky_behind", "sky_behind_fraction",
             "psnr_static_elsewhere", "never_observed_fraction", "never_observed_truth", "never_observed_precision",
             "never_observed_recall", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}
