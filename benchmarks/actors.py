@@ -356,7 +356,8 @@ def main(argv: list[str] | None = None) -> int:
         row = {"label": label, **score_run(run_dir, discovery), **novel_view_scores(run_dir),
                "seconds": round(time.perf_counter() - start, 1)}
         rows.append(row)
-        document["summary"] = summary([r for r in rows if r["label"].startswith("s")])
+        # Over the seeds' scenes when there are any, else over the --run runs (a rescoring of trained runs).
+        document["summary"] = summary(rows[:len(args.seeds)] if args.seeds else rows)
         atomic_write_json(args.out, document)
         print(json.dumps({k: v for k, v in row.items() if k != "pairs"}), flush=True)
     return 0
