@@ -238,6 +238,7 @@ def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float],
     (lateral, longitudinal m), the actor ``shift`` seconds later, every actor removed."""
     import torch
 
+    from radar4dgs.actors.background import background_sky
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import ActorEdits
     from radar4dgs.actors.store import run_actors
@@ -250,7 +251,8 @@ def edit_figure(run_dir: Path, out: Path, actor: int, move: tuple[float, float],
 
     run = load_run(run_dir, "cpu")
     actors, times = run_actors(run), normalized_times(run.scene)
-    models = [run.model] + [edited_model(run.model, actors, edits, times, run.scene.duration) for edits in (
+    sky = background_sky(run)  # as `radar4dgs render` shows edits
+    models = [run.model] + [edited_model(run.model, actors, edits, times, run.scene.duration, sky) for edits in (
         ActorEdits(move={actor: move}), ActorEdits(retime={actor: ("shift", shift)}), ActorEdits(remove_all=True))]
     labels = ["unedited", f"--move-actor {actor}:{move[0]:g},{move[1]:g}", f"--retime-actor {actor}:{shift:+g}",
               "--remove-actors all"]
