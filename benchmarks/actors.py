@@ -136,7 +136,12 @@ def background_scores(run, actors) -> dict:
     import cv2
     import torch
 
-    from radar4dgs.actors.background import background_sky, never_observed_mask, training_visibility
+    from radar4dgs.actors.background import (
+        background_sky,
+        fill_never_observed,
+        never_observed_mask,
+        training_visibility,
+    )
     from radar4dgs.actors.edit import edited_model
     from radar4dgs.actors.spec import ActorEdits
     from radar4dgs.apps.render import Unobserved
@@ -189,9 +194,7 @@ def background_scores(run, actors) -> dict:
         elsewhere += int((~mask).sum())
         fill = rendered_fill.mask(run, view, edited)
         for key, out in (("filled", edited), ("filled_trained_sky", trained_sky)):
-            written = to_uint8(out["rgb"])
-            if fill.any():
-                written = cv2.inpaint(written, fill.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+            written = fill_never_observed(to_uint8(out["rgb"]), fill)
             sums[key] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
     return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
             "psnr_removed_trained_sky": psnr(sums["removed_trained_sky"], count),

@@ -123,3 +123,19 @@ def test_background_sky_keeps_the_trained_sky_where_the_sky_was_seen_clear(oracl
         assert clear.sum() > 100  # the tiny scene shows sky
         change = (repaired(directions) - run.model.sky(directions)).abs().max(-1).values.numpy()
     assert np.quantile(change[clear], 0.99) < 1e-6
+
+
+def test_fill_never_observed_restores_a_smooth_image_and_leaves_other_pixels_alone():
+    from radar4dgs.actors.background import fill_never_observed
+
+    cols = np.arange(64, dtype=np.float64)
+    ramp = np.repeat(np.stack([40 + 2 * cols, 90 + cols, np.full(64, 200.0)], -1)[None], 48, axis=0)
+    truth = ramp.round().astype(np.uint8)
+    never = np.zeros((48, 64), dtype=bool)
+    never[20:28, 30:38] = True  # an 8 x 8 hole in a horizontal ramp
+    damaged = truth.copy()
+    damaged[never] = 0
+    filled = fill_never_observed(damaged, never)
+    assert np.array_equal(filled[~never], truth[~never])
+    assert np.abs(filled[never].astype(int) - truth[never].astype(int)).max() <= 4  # the ramp spans 14 levels there
+    assert fill_never_observed(damaged, np.zeros_like(never)) is damaged

@@ -265,6 +265,7 @@ def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bo
     of each (rgb, or rgb | depth | dynamic)."""
     import torch
 
+    from radar4dgs.actors.background import fill_never_observed
     from radar4dgs.evaluate.reconstruction import DEPTH_FAR, DEPTH_NEAR, render_view, to_uint8
     from radar4dgs.evaluate.visualize import depth_to_rgb, mask_to_rgb, side_by_side
     from radar4dgs.io.preview import save_png
@@ -278,10 +279,8 @@ def _render_frames(run, views: list[View], indices, folder: Path, with_depth: bo
         if unobserved is not None:
             never = unobserved.mask(run, view, rendered)
             save_png(folder / f"{i:05d}_never_observed.png", mask_to_rgb(never))
-            if unobserved.fill and never.any():
-                import cv2
-
-                rgb = cv2.inpaint(rgb, never.astype(np.uint8), 3, cv2.INPAINT_TELEA)
+            if unobserved.fill:
+                rgb = fill_never_observed(rgb, never)
         save_png(folder / f"{i:05d}.png", rgb)
         if not with_depth:
             yield rgb
