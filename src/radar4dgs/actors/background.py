@@ -31,7 +31,7 @@ STATIC_ALPHA = 0.5
 DYNAMIC_WEIGHT = 0.5
 # Telea inpainting's neighbourhood (pixels) for never-observed pixels. On the tuning runs (sky repaired)
 # radius 7 scored 0.27 dB (realistic 101-105) and 0.21 dB (hard 214-216) above radius 3 under removed
-# movers, every run higher; Navier-Stokes at 3 or 7 was no better than Telea at 3.
+# movers, every run higher; Navier-Stokes at 3 or 7 was no better than Telea at 3, 11 and 15 no better than 7.
 FILL_RADIUS = 7
 # A sky texel whose fit came less than half from pixels with no dynamic object in front holds what was
 # in front of it instead.
