@@ -195,13 +195,15 @@ def background_sky(run, scale: float = 1.0):
     total = np.zeros(sky.height * sky.width)
     for i in scene.train_indices:
         view = frame_view(scene, i, scale, times)
+        # The render's own rays, computed once here: the sky fit is measured along them.
+        directions = camera_ray_directions(view.K, view.world_to_camera, view.height, view.width,
+                                           device=sky.logits.device, dtype=sky.logits.dtype)
         with torch.no_grad():
-            full = run.model.render(view, run.config.raster)
+            full = run.model.render(view, run.config.raster, directions=directions)
         clean = full["dynamic"].cpu().numpy() < DYNAMIC_WEIGHT
         if masks is not None:
             mask = read_mask_png(masks / f"{scene.frames[i].name}.png", shape)
             clean &= ~resize_nearest(mask, (view.width, view.height))
-        directions = camera_ray_directions(view.K, view.world_to_camera, view.height, view.width)
         c, t = sky_fit_weights(sky, directions, clean, 1.0 - full["alpha"].double().cpu().numpy())
         clean_sum += c
         total += t
