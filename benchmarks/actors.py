@@ -3,7 +3,7 @@
     python benchmarks/actors.py --seeds 106 107 108 109 110 [--traffic realistic] [--fps 5] [--preset tiny]
                                 [--iterations 600] [--work /tmp/radar4dgs-actors-bench]
                                 [--out benchmarks/results/actors.json] [--run RUN ...]
-                                [--discovery-set KEY=VALUE ...]
+                                [--discovery-set KEY=VALUE ...] [--oracle]
 
 Seeds fixed before looking, the project's convention: realistic traffic 101-105 tune (the discovery
 thresholds were set on 101 only), 106-110 report; the hard set (``--traffic rush --fps 5``) 214-215 tune
@@ -22,6 +22,11 @@ at --preset, prepared, its background render (the generator's same world without
 - the fraction of those pixels marked "never observed" (``radar4dgs.actors.background``), and the
   removed-actor PSNR over the others (where a training frame saw the static surface), and the static
   layer's PSNR over the pixels no mover covers (the background render equals the frame there).
+
+``--oracle`` also makes each scene again without its moving objects (``radar4dgs synth --scene.without-movers``:
+every frame is the background render), prepares and trains it with the run's own configs, and scores that
+static layer on the same pixels (``oracle_psnr_*``): what the static layer reaches at the run's budget when
+nothing ever hid the road, the ceiling of the removed-mover scores.
 
 ``--run RUN`` scores an already trained run of a synthetic scene too (its scene needs gt/background,
 written here when missing). ``--discovery-set KEY=VALUE`` discovers with other ActorConfig values
@@ -128,11 +133,37 @@ def ground_truth_visibility(run) -> list:
     return out
 
 
-def background_scores(run, actors) -> dict:
+def oracle_run(run, work: Path) -> Path:
+    """``run``'s scene made again without its moving objects, prepared and trained with the run's own
+    prepare and train configs (one thread), under ``work/oracle/`` (reused): the ``--oracle`` ceiling."""
+    from dataclasses import replace
+
+    from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+    from radar4dgs.config import load_config
+    from radar4dgs.datasets.synth import synthesize
+    from radar4dgs.datasets.synth.background import scene_config
+    from radar4dgs.train.trainer import train_run
+
+    folder = work / "oracle" / f"{run.scene.root.name}-without-movers"
+    scene, out = folder / "scene", folder / "run"
+    if not (scene / "scene.json").is_file():
+        preset_name = json.loads((run.scene.root / "scene.json").read_text())["source"].get("preset")
+        synthesize(replace(scene_config(run.scene.root), without_movers=True), scene, overwrite=True,
+                   progress=False, preset=preset_name)
+    if not (scene / "prepared" / "config.json").is_file():
+        run_prepare(scene, scene / "prepared", load_config(PrepareConfig, run.prepared / "config.json"),
+                    progress=False)
+    if not (out / "model.pt").is_file():
+        train_run(scene, scene / "prepared", out, replace(run.config, threads=1), progress=False, tensorboard=False)
+    return out
+
+
+def background_scores(run, actors, oracle=None) -> dict:
     """PSNR over the test frames' moving-object pixels: every actor removed vs the background render
     (with the repaired sky map `radar4dgs render` uses, and with the sky as trained), the unedited render
     vs it, and what `radar4dgs render --remove-actors all` writes (the never-observed pixels filled); the
-    fraction of those pixels marked never observed, and how that mask agrees with the truth."""
+    fraction of those pixels marked never observed, and how that mask agrees with the truth. ``oracle``: a
+    run of the same scene without movers (:func:`oracle_run`), scored on the same pixels."""
     import cv2
     import torch
 
@@ -156,9 +187,11 @@ def background_scores(run, actors) -> dict:
     visibility = training_visibility(run, scale=1.0)
     rendered_fill = Unobserved.of(run, run.model, fill=True)
     truth_views = ground_truth_visibility(run)
+    oracle_static = None if oracle is None else edited_model(oracle.model, [], ActorEdits(remove_all=True), times)
     generator = scene_config(scene.root)
     sums = {"removed": 0.0, "removed_trained_sky": 0.0, "filled_trained_sky": 0.0, "kept": 0.0, "observed": 0.0,
-            "elsewhere": 0.0, "filled": 0.0, "truly_unseen": 0.0, "truly_seen": 0.0, "sky_behind": 0.0}
+            "elsewhere": 0.0, "filled": 0.0, "truly_unseen": 0.0, "truly_seen": 0.0, "sky_behind": 0.0,
+            "oracle": 0.0, "oracle_truly_seen": 0.0, "oracle_truly_unseen": 0.0, "oracle_elsewhere": 0.0}
     count = never = elsewhere = unseen_count = both = sky_count = 0
     for i in scene.test_indices:
         mask = scene.load_optional("gt/dynamic_mask", i) > 0
@@ -192,11 +225,22 @@ def background_scores(run, actors) -> dict:
         # The same static layer where nothing moves, against the recorded frame: its quality elsewhere.
         sums["elsewhere"] += float(((rgb - background)[~mask] ** 2).sum() / 3)
         elsewhere += int((~mask).sum())
+        if oracle_static is not None:
+            with torch.no_grad():
+                ceiling = oracle_static.render(view, oracle.config.raster)["rgb"].clamp(0, 1).double().cpu().numpy()
+            for key, where in (("oracle", mask), ("oracle_truly_seen", mask & ~truth & ~sky_behind),
+                               ("oracle_truly_unseen", truth), ("oracle_elsewhere", ~mask)):
+                sums[key] += float(((ceiling - background)[where] ** 2).sum() / 3)
         fill = rendered_fill.mask(run, view, edited)
         for key, out in (("filled", edited), ("filled_trained_sky", trained_sky)):
             written = fill_never_observed(to_uint8(out["rgb"]), fill)
             sums[key] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
-    return {"psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
+    oracle_scores = {} if oracle is None else {
+        "oracle_psnr_removed": psnr(sums["oracle"], count),
+        "oracle_psnr_truly_seen": psnr(sums["oracle_truly_seen"], count - unseen_count - sky_count),
+        "oracle_psnr_truly_unseen": psnr(sums["oracle_truly_unseen"], unseen_count),
+        "oracle_psnr_static_elsewhere": psnr(sums["oracle_elsewhere"], elsewhere)}
+    return {**oracle_scores, "psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
             "psnr_removed_trained_sky": psnr(sums["removed_trained_sky"], count),
             "psnr_removed_filled": psnr(sums["filled"], count),
             "psnr_removed_filled_trained_sky": psnr(sums["filled_trained_sky"], count),
@@ -212,9 +256,10 @@ def background_scores(run, actors) -> dict:
             "never_observed_recall": both / unseen_count if unseen_count else None}
 
 
-def score_run(run_dir: Path, discovery=None) -> dict:
+def score_run(run_dir: Path, discovery=None, oracle_work: Path | None = None) -> dict:
     """Actors and background scores of one trained run of a synthetic scene; ``discovery``: the
-    ActorConfig to discover with (None: the defaults)."""
+    ActorConfig to discover with (None: the defaults); ``oracle_work``: train and score the run's
+    :func:`oracle_run` there too."""
     from radar4dgs.actors.discover import discover_actors
     from radar4dgs.actors.groundtruth import scene_movers, score_actors
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
@@ -224,12 +269,13 @@ def score_run(run_dir: Path, discovery=None) -> dict:
     run = load_run(run_dir, "cpu")
     if not (run.scene.root / BACKGROUND_DIR).is_dir():
         write_backgrounds(run.scene.root, run.scene.test_indices)
+    oracle = None if oracle_work is None else load_run(oracle_run(run, oracle_work), "cpu")
     start = time.perf_counter()
     actors = discover_actors(run.model, run.scene, load_radar_objects(run.prepared), discovery)
     seconds = time.perf_counter() - start
     result = {"run": str(run_dir), "scene": str(run.scene.root), "discovery_seconds": round(seconds, 2),
               "n_dynamic": len(run.model.dynamic) if run.model.dynamic is not None else 0,
-              **score_actors(actors, scene_movers(run.scene)), **background_scores(run, actors)}
+              **score_actors(actors, scene_movers(run.scene)), **background_scores(run, actors, oracle)}
     result["gain_db"] = (None if result["psnr_removed"] is None or result["psnr_kept"] is None
                          else result["psnr_removed"] - result["psnr_kept"])
     return result
@@ -286,7 +332,8 @@ def summary(rows: list[dict]) -> dict:
             "psnr_removed_trained_sky", "psnr_removed_filled_trained_sky", "psnr_removed_truly_unseen",
             "psnr_removed_truly_seen", "psnr_removed_sky_behind", "sky_behind_fraction",
             "psnr_static_elsewhere", "never_observed_fraction", "never_observed_truth", "never_observed_precision",
-            "never_observed_recall", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
+            "never_observed_recall", "oracle_psnr_removed", "oracle_psnr_truly_seen", "oracle_psnr_truly_unseen",
+            "oracle_psnr_static_elsewhere", "recon_psnr", "recon_psnr_dyn", "nvs_psnr", "nvs_psnr_dyn")
     out = {}
     for key in keys:
         values = [r[key] for r in rows if r.get(key) is not None]
@@ -331,6 +378,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="PrepareConfig fields of every scene, dotted KEY=VALUE (masks.completion.enabled=true)")
     parser.add_argument("--discovery-set", nargs="*", default=[],
                         help="ActorConfig fields for discovery, KEY=VALUE (min_gaussians=8); trained runs are reused")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also train each scene without its movers (under --work) and score it: the ceiling")
     parser.add_argument("--figure", type=Path, default=None,
                         help="only draw the edit picture of the first --run's actor --figure-actor to this PNG")
     parser.add_argument("--figure-actor", type=int, default=0)
@@ -346,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     discovery_settings = {"discovery_set": args.discovery_set} if args.discovery_set else {}
     settings = {"traffic": args.traffic, "fps": args.fps, "preset": args.preset, "iterations": args.iterations,
-                "seeds": args.seeds, "prepare_set": args.prepare_set, **discovery_settings}
+                "seeds": args.seeds, "prepare_set": args.prepare_set, "oracle": args.oracle, **discovery_settings}
     # Runs given with --run were trained elsewhere: the preset and iterations here say nothing about them.
     document = {"settings": settings if args.seeds else discovery_settings, "runs": [str(p) for p in args.run],
                 "scenes": rows}
@@ -358,7 +407,8 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = train_scene(scene, args.preset, args.iterations, args.work / "runs" / scene.name)
         else:
             run_dir = job
-        row = {"label": label, **score_run(run_dir, discovery), **novel_view_scores(run_dir),
+        row = {"label": label, **score_run(run_dir, discovery, args.work if args.oracle else None),
+               **novel_view_scores(run_dir),
                "seconds": round(time.perf_counter() - start, 1)}
         rows.append(row)
         # Over the seeds' scenes when there are any, else over the --run runs (a rescoring of trained runs).

@@ -38,3 +38,23 @@ def test_synth_background_flag_writes_every_frame(tmp_path, capsys):
                  "--background"]) == 0
     assert sorted(p.name for p in (out / "gt" / "background").iterdir()) == ["000000.png", "000001.png"]
     assert "without its moving objects" in capsys.readouterr().out
+
+
+def test_scene_without_movers_is_the_background_render_with_no_moving_returns(motion_scene, tmp_path):
+    from dataclasses import replace
+
+    from radar4dgs.datasets.synth import synthesize
+    from radar4dgs.datasets.synth.radar import MOVING
+    from radar4dgs.io.scene import read_scene
+
+    config = scene_config(motion_scene.root)
+    twin = read_scene(synthesize(replace(config, without_movers=True), tmp_path / "twin", progress=False))
+    assert (motion_scene.load_optional("gt/dynamic_mask", 0) > 0).any()
+    for index in (0, len(twin) - 1):
+        # The twin's frames are the scene's background renders, bit for bit, and nothing in them moves.
+        assert np.array_equal(twin.load_image(index), render_background(config, index))
+        assert not (twin.load_optional("gt/dynamic_mask", index) > 0).any()
+        assert not (twin.load_optional("gt/radar_labels", index) == MOVING).any()
+        assert (motion_scene.load_optional("gt/radar_labels", index) == MOVING).any()
+    assert scene_config(twin.root).without_movers
+    assert np.allclose(twin.world_to_camera(7), motion_scene.world_to_camera(7))

@@ -178,6 +178,10 @@ class SynthConfig:
     # that wrong stamp, as a converter reading a skewed clock would write it. Positive: the radar's
     # stamps run early, the camera's late relative to them, the sign of radar/sync.py's tau.
     radar_time_offset: float = 0.0
+    # The same scene with every moving object left out (parked cars stay): same world, camera path, noise
+    # and radar draws, so each frame is the scene's gt/background render. Trained at a run's budget, it is
+    # the ceiling of what a static layer can score under removed actors (benchmarks/actors.py --oracle).
+    without_movers: bool = False
 
     PRESETS: ClassVar[dict[str, dict]] = {
         "tiny": {"width": 160, "height": 90, "num_frames": 20,

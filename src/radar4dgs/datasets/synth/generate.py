@@ -13,6 +13,7 @@ from radar4dgs.datasets.synth import lidar as L
 from radar4dgs.datasets.synth import priors as P
 from radar4dgs.datasets.synth import radar as R
 from radar4dgs.datasets.synth import world as W
+from radar4dgs.datasets.synth.background import background_world
 from radar4dgs.datasets.synth.config import RadarReflectivity, SynthConfig, TrafficConfig
 from radar4dgs.datasets.synth.street import build_world
 from radar4dgs.io.scene import Camera, Frame, RadarSpec, SceneWriter
@@ -135,15 +136,17 @@ def synthesize(config: SynthConfig, out: Path, overwrite: bool = False, progress
     """
     validate(config)
     out = Path(out)
+    dt = 1.0 / config.fps
+    times = np.arange(config.num_frames) * dt
     world = build_world(config)
+    if config.without_movers:
+        world = background_world(world, times)
     K = C.intrinsics(config)
     cam_to_ego = C.cam_to_ego(config)
     rays = C.pixel_rays(K, config.width, config.height)
     mount = R.radar_to_ego(config.radar, np.random.default_rng([config.seed, _MOUNT]))
     prior_rng = np.random.default_rng([config.seed, _SCENE_PRIOR])
     a, b = (float(prior_rng.uniform(*r)) for r in (config.prior.scale_range, config.prior.shift_range))
-    dt = 1.0 / config.fps
-    times = np.arange(config.num_frames) * dt
     camera = Camera(config.width, config.height, K, cam_to_ego)
     radar_spec = RadarSpec(mount, R.FIELDS)
     to_world = world.road_to_world
