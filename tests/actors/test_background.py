@@ -12,6 +12,7 @@ from radar4dgs.actors.background import (
     TrainingView,
     background_sky,
     backproject,
+    never_seen,
     repaired_sky,
     seen_in,
     sky_fit_weights,
@@ -49,6 +50,22 @@ def test_a_point_is_seen_unless_outside_occluded_or_under_a_dynamic_object():
     covered[40, 20] = 0.9  # a car over that pixel in this training frame
     assert not seen_in(point, TrainingView(W2C, K, depth, covered)).any()
     assert not seen_in(point + np.array([-10.0, 0, 0]), view).any()  # behind the camera
+
+
+def test_a_surface_hidden_by_movers_in_nine_of_its_ten_frames_counts_as_never_seen():
+    depth = ground_depth()
+    point = backproject(depth, K, W2C, np.array([[40, 20]]))
+    clear = TrainingView(W2C, K, depth, np.zeros_like(depth))
+    covered = np.zeros_like(depth)
+    covered[40, 20] = 0.9
+    hidden = TrainingView(W2C, K, depth, covered)
+    elsewhere = TrainingView(W2C, K, depth * 0.5, covered)  # a nearer static surface: not in view there
+    assert never_seen(point, [hidden] * 3).all()
+    assert never_seen(point, [clear] + [hidden] * 9).all()  # glimpsed once behind a followed car
+    assert not never_seen(point, [clear] * 2 + [hidden] * 8).any()  # 80 % hidden: seen
+    # Frames where another surface is in front count neither way.
+    assert not never_seen(point, [clear] * 2 + [hidden] * 8 + [elsewhere] * 20).any()
+    assert never_seen(point, [clear] * 2 + [hidden] * 8, hidden_share=0.8).all()
 
 
 def test_the_default_tolerance_accepts_a_rough_static_surface_that_a_tight_one_rejects():
