@@ -3,6 +3,8 @@ layer under removed actors)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from radar4dgs.cli import main
@@ -57,4 +59,6 @@ def test_scene_without_movers_is_the_background_render_with_no_moving_returns(mo
         assert not (twin.load_optional("gt/radar_labels", index) == MOVING).any()
         assert (motion_scene.load_optional("gt/radar_labels", index) == MOVING).any()
     assert scene_config(twin.root).without_movers
+    # Scenes with their movers keep the scene.json they had before the option existed.
+    assert "without_movers" not in json.loads((motion_scene.root / "scene.json").read_text())["synthetic"]["config"]
     assert np.allclose(twin.world_to_camera(7), motion_scene.world_to_camera(7))

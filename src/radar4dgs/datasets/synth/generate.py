@@ -73,7 +73,8 @@ def config_record(config: SynthConfig) -> dict:
     they had before those options existed."""
     record = to_dict(config)
     # Options added later are recorded only when set, so existing scenes keep their exact scene.json.
-    for name, default in (("ego_speed_swing", 0.0), ("ego_speed_period", 4.0), ("radar_time_offset", 0.0)):
+    for name, default in (("ego_speed_swing", 0.0), ("ego_speed_period", 4.0), ("radar_time_offset", 0.0),
+                          ("without_movers", False)):
         if record.get(name) == default and (name != "ego_speed_period" or not config.ego_speed_swing):
             del record[name]
     if config.traffic == TrafficConfig():
