@@ -24,7 +24,8 @@ Actor edits (:mod:`radar4dgs.actors.edit`; ids from ``radar4dgs actors RUN``, fo
 each repeatable and combinable with every trajectory. They change the actors' Gaussians, not the
 picture. The slug gets the edits appended (``recorded_rm-all``, ``recorded_mv2_3.5,0``), and each frame
 gets ``<00000>_never_observed.png``: the pixels an actor left (dynamic in the unedited render, not in the
-edited one) whose static surface no training frame saw (:mod:`radar4dgs.actors.background`); those
+edited one) whose static surface no training frame saw, or moving objects hid in nearly every frame it
+was in view in (:mod:`radar4dgs.actors.background`); those
 pixels are filled from their surroundings (OpenCV inpainting), and the sky map's texels that only dynamic
 objects fitted take the colour of the nearest ones that the sky itself did, unless ``--no-fill-unobserved``.
 """
