@@ -217,8 +217,8 @@ def background_scores(run, actors, oracle=None) -> dict:
         rgb = edited["rgb"].clamp(0, 1).double().cpu().numpy()
         # Where the error sits: surfaces no training frame saw, surfaces some did, and sky behind the movers.
         sky_behind = mask & ~np.isfinite(background_depth)
-        for key, where in (("truly_unseen", truth), ("truly_seen", mask & ~truth & ~sky_behind),
-                           ("sky_behind", sky_behind)):
+        truly_seen = mask & ~truth & ~sky_behind
+        for key, where in (("truly_unseen", truth), ("truly_seen", truly_seen), ("sky_behind", sky_behind)):
             sums[key] += float(((rgb - background)[where] ** 2).sum() / 3)
         sky_count += int(sky_behind.sum())
         sums["observed"] += float(((rgb - background)[mask & ~unseen] ** 2).sum() / 3)
@@ -228,16 +228,17 @@ def background_scores(run, actors, oracle=None) -> dict:
         if oracle_static is not None:
             with torch.no_grad():
                 ceiling = oracle_static.render(view, oracle.config.raster)["rgb"].clamp(0, 1).double().cpu().numpy()
-            for key, where in (("oracle", mask), ("oracle_truly_seen", mask & ~truth & ~sky_behind),
-                               ("oracle_truly_unseen", truth), ("oracle_elsewhere", ~mask)):
+            for key, where in (("oracle", mask), ("oracle_truly_seen", truly_seen), ("oracle_truly_unseen", truth),
+                               ("oracle_elsewhere", ~mask)):
                 sums[key] += float(((ceiling - background)[where] ** 2).sum() / 3)
         fill = rendered_fill.mask(run, view, edited)
         for key, out in (("filled", edited), ("filled_trained_sky", trained_sky)):
             written = fill_never_observed(to_uint8(out["rgb"]), fill)
             sums[key] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)
+    seen_count = count - unseen_count - sky_count
     oracle_scores = {} if oracle is None else {
         "oracle_psnr_removed": psnr(sums["oracle"], count),
-        "oracle_psnr_truly_seen": psnr(sums["oracle_truly_seen"], count - unseen_count - sky_count),
+        "oracle_psnr_truly_seen": psnr(sums["oracle_truly_seen"], seen_count),
         "oracle_psnr_truly_unseen": psnr(sums["oracle_truly_unseen"], unseen_count),
         "oracle_psnr_static_elsewhere": psnr(sums["oracle_elsewhere"], elsewhere)}
     return {**oracle_scores, "psnr_removed": psnr(sums["removed"], count), "psnr_kept": psnr(sums["kept"], count),
@@ -247,7 +248,7 @@ def background_scores(run, actors, oracle=None) -> dict:
             "psnr_removed_observed": psnr(sums["observed"], count - never),
             "psnr_static_elsewhere": psnr(sums["elsewhere"], elsewhere),
             "psnr_removed_truly_unseen": psnr(sums["truly_unseen"], unseen_count),
-            "psnr_removed_truly_seen": psnr(sums["truly_seen"], count - unseen_count - sky_count),
+            "psnr_removed_truly_seen": psnr(sums["truly_seen"], seen_count),
             "psnr_removed_sky_behind": psnr(sums["sky_behind"], sky_count),
             "sky_behind_fraction": sky_count / count if count else None,
             "pixels": count, "never_observed_fraction": never / count if count else None,

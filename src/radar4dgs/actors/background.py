@@ -114,8 +114,8 @@ def seen_or_hidden_in(points: np.ndarray, view: TrainingView,
     there = view.depth[vi, ui]
     same = np.abs(there - zi) <= relative * zi + absolute
     under = view.dynamic[vi, ui] >= DYNAMIC_WEIGHT
-    seen[np.flatnonzero(inside)] = same & ~under
-    hidden[np.flatnonzero(inside)] = same & under
+    seen[inside] = same & ~under
+    hidden[inside] = same & under
     return seen, hidden
 
 
