@@ -223,3 +223,18 @@ def test_one_real_cell_end_to_end(tiny_trained_run, tmp_path, capsys):
     assert main(args) == 0
     assert "[1/1] scene/static: skipped" in capsys.readouterr().out
     assert (out / "runs" / "scene" / "static" / "metrics.json").stat().st_mtime_ns == stamp
+
+
+def test_a_threads_setting_is_the_cells_thread_count(tmp_path, fake_training, monkeypatch):
+    # The default (CPUs / jobs) used to override `--set threads=N`: parallel benchmarks oversubscribed.
+    import radar4dgs.apps.bench as bench
+
+    monkeypatch.setattr(bench, "default_threads", lambda jobs: 7)
+    scene = make_scene(tmp_path / "a")
+    result = run_bench([BenchScene("a", scene, scene / "prepared")], ["static"], tmp_path / "out", "tiny",
+                       iterations=5, progress=False, log=lambda line: None, settings={"threads": 1})
+    assert [call[5] for call in fake_training.calls if call[0] == "train"] == [1]
+    assert result["config"]["threads_per_job"] == 1
+    run_bench([BenchScene("a", scene, scene / "prepared")], ["static"], tmp_path / "out2", "tiny",
+              iterations=5, progress=False, log=lambda line: None)
+    assert [call[5] for call in fake_training.calls if call[0] == "train"] == [1, 7]

@@ -101,8 +101,8 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
     """Run the grid ``scenes`` x ``methods`` into ``out`` and write bench.json (after every cell),
     table.md, table.csv and ablation.png (at the end, also when interrupted); returns bench.json.
 
-    ``runner`` (default :func:`run_cell`) brings one cell to its metrics; ``threads`` (default
-    :func:`default_threads`) is each job's torch thread count; ``settings`` (nested TrainConfig
+    ``runner`` (default :func:`run_cell`) brings one cell to its metrics; ``threads`` (default: the
+    ``threads`` of ``settings``, else :func:`default_threads`) is each job's torch thread count; ``settings`` (nested TrainConfig
     fields, :func:`parse_overrides`) change every cell's config before its method's own fields;
     ``force`` retrains the cells whose run folder was trained with another configuration.
     ``jobs`` > 1 or an ``address`` runs the cells as Ray tasks (``jobs`` at once, each declaring
@@ -113,7 +113,9 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
     if jobs < 1:
         raise BenchError(f"--jobs must be >= 1, got {jobs}")
     runner = runner if runner is not None else run_cell
-    threads = threads if threads is not None else default_threads(jobs)
+    # A `--set threads=N` is the user's thread count too: the default must not override it (it did,
+    # and two parallel benchmarks each ran 2 threads on 2 cores, several times slower).
+    threads = threads if threads is not None else (settings or {}).get("threads", default_threads(jobs))
     overrides = cell_overrides(settings, threads, iterations)
     try:
         # Every method's config is built once here, so that a bad option fails before any training.
