@@ -102,8 +102,9 @@ def run_bench(scenes: Sequence[BenchScene], methods: Sequence[str], out: Path, p
     table.md, table.csv and ablation.png (at the end, also when interrupted); returns bench.json.
 
     ``runner`` (default :func:`run_cell`) brings one cell to its metrics; ``threads`` (default: the
-    ``threads`` of ``settings``, else :func:`default_threads`) is each job's torch thread count; ``settings`` (nested TrainConfig
-    fields, :func:`parse_overrides`) change every cell's config before its method's own fields;
+    ``threads`` of ``settings``, else :func:`default_threads`) is each job's torch thread count;
+    ``settings`` (nested TrainConfig fields, :func:`parse_overrides`) change every cell's config
+    before its method's own fields;
     ``force`` retrains the cells whose run folder was trained with another configuration.
     ``jobs`` > 1 or an ``address`` runs the cells as Ray tasks (``jobs`` at once, each declaring
     ``threads`` CPUs) on a local cluster or on the Ray cluster at ``address``
