@@ -231,7 +231,7 @@ def background_scores(run, actors, oracle=None) -> dict:
             for key, where in (("oracle", mask), ("oracle_truly_seen", truly_seen), ("oracle_truly_unseen", truth),
                                ("oracle_elsewhere", ~mask)):
                 sums[key] += float(((ceiling - background)[where] ** 2).sum() / 3)
-        fill = rendered_fill.mask(run, view, edited)
+        fill = rendered_fill.mask(run, view, edited, unedited_render=full)
         for key, out in (("filled", edited), ("filled_trained_sky", trained_sky)):
             written = fill_never_observed(to_uint8(out["rgb"]), fill)
             sums[key] += float(((written.astype(np.float64) / 255 - background)[mask] ** 2).sum() / 3)

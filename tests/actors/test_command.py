@@ -92,3 +92,25 @@ def test_edited_renders_use_the_repaired_sky_unless_told_not_to(oracle):
     assert unedited is oracle.run.model and raw.model.sky is oracle.run.model.sky
     assert repaired.model.sky is not oracle.run.model.sky
     assert torch.equal(repaired.model.sky.logits, background_sky(oracle.run).logits)
+
+
+def test_the_never_observed_mask_takes_the_unedited_render_when_given(oracle):
+    from radar4dgs.actors.background import DYNAMIC_WEIGHT, never_observed_mask
+    from radar4dgs.apps.render import Unobserved, edit_run
+    from radar4dgs.evaluate.reconstruction import render_view
+    from radar4dgs.io.scene import normalized_times
+    from radar4dgs.model.view import frame_view
+
+    edited, unedited = edit_run(oracle.run, parse_edits(["all"]))
+    unobserved = Unobserved.of(edited, unedited, fill=True)
+    view = frame_view(oracle.run.scene, oracle.run.scene.test_indices[0], 1.0, normalized_times(oracle.run.scene))
+    with torch.no_grad():
+        after, before = render_view(edited, view), unedited.render(view, edited.config.raster)
+    assert np.array_equal(unobserved.mask(edited, view, after, unedited_render=before),
+                          unobserved.mask(edited, view, after))
+    # A given render is the one used: one that is dynamic everywhere leaves every pixel the edit left static.
+    everywhere = {"dynamic": torch.ones_like(after["dynamic"])}
+    left = after["dynamic"].cpu().numpy() <= DYNAMIC_WEIGHT
+    expected = never_observed_mask(edited, view, left, unobserved.visibility)
+    assert expected.any()
+    assert np.array_equal(unobserved.mask(edited, view, after, unedited_render=everywhere), expected)

@@ -248,14 +248,17 @@ class Unobserved:
 
         return None if unedited is None else cls(unedited, training_visibility(run, scale=0.5), fill)
 
-    def mask(self, run, view: View, rendered: dict) -> np.ndarray:
-        """(H, W) bool never-observed pixels of ``view`` among those the edited actors left."""
+    def mask(self, run, view: View, rendered: dict, unedited_render: dict | None = None) -> np.ndarray:
+        """(H, W) bool never-observed pixels of ``view`` among those the edited actors left;
+        ``unedited_render``: the unedited model's render of ``view`` when the caller has it."""
         import torch
 
         from radar4dgs.actors.background import DYNAMIC_WEIGHT, never_observed_mask
 
-        with torch.no_grad():
-            before = self.unedited.render(view, run.config.raster)["dynamic"].cpu().numpy()
+        if unedited_render is None:
+            with torch.no_grad():
+                unedited_render = self.unedited.render(view, run.config.raster)
+        before = unedited_render["dynamic"].cpu().numpy()
         region = (before > DYNAMIC_WEIGHT) & (rendered["dynamic"].cpu().numpy() <= DYNAMIC_WEIGHT)
         return never_observed_mask(run, view, region, self.visibility)
 
