@@ -307,35 +307,3 @@ def test_by_default_the_radar_prediction_must_beat_the_dense_flow_by_a_tenth(rad
     gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 120, "radar": radar_grey})
     model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
     assert model == expected
-
-
-def lifted_error(result, pair: dict) -> np.ndarray:
-    """(M,) |lifted 3D motion - the object's true motion| (m) of a pair_scene_flow result."""
-    return np.linalg.norm((result.points_j - result.points_i) - pair["velocity"] * DT, axis=1)
-
-
-def test_object_model_pixels_skip_the_forward_backward_check():
-    # Frame b has no radar object: the backward step keeps a wrong dense flow, so the matched
-    # forward motion disagrees with it everywhere and the check drops a right motion.
-    pair = object_pair(shift=60.0, scale=1.2)
-    inputs = pair_inputs(pair)
-    hints = {"hints_i": [hint(pair)], "hints_j": [], "dt": DT}
-    checked = pair_scene_flow(FlowConfig(), **inputs, **hints)
-    assert checked.models["radar"] + checked.models["matched"] == 1
-    assert object_error(checked.forward, pair).max() < 1.0
-    assert len(checked.points_i) < 0.1 * pair["mask_a"].sum()
-    skipped = pair_scene_flow(FlowConfig(models_skip_consistency=True), **inputs, **hints)
-    assert len(skipped.points_i) > 0.5 * pair["mask_a"].sum()
-    assert np.median(lifted_error(skipped, pair)) < 0.1
-    # The dense-flow pixels off the object are not a model's: the check still decides them.
-    assert np.array_equal(skipped.consistent, checked.consistent)
-
-
-@pytest.mark.parametrize(("max_speed", "kept"), [(0.0, True), (30.0, False), (40.0, True)])
-def test_pairs_faster_than_the_speed_bound_are_dropped(max_speed, kept):
-    pair = object_pair(shift=60.0, scale=1.0)
-    speed = float(np.linalg.norm(pair["velocity"]))
-    assert speed == pytest.approx(60.0 * DEPTH / FOCAL / DT)  # 36 m/s
-    result = pair_scene_flow(FlowConfig(max_object_speed=max_speed, models_skip_consistency=True),
-                             **pair_inputs(pair), hints_i=[hint(pair)], hints_j=[], dt=DT)
-    assert (len(result.points_i) > 0.5 * pair["mask_a"].sum()) == kept

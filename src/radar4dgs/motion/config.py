@@ -34,19 +34,6 @@ class FlowConfig:
     consistency_alpha: float = 0.01
     # See consistency_alpha; UnFlow uses 0.5 px^2.
     consistency_beta: float = 0.5
-    # Pixels whose forward motion is an object model (a component's translation, radar prediction
-    # or matched warp) skip the forward-backward check; they still face the photometric checks. The
-    # backward motion is chosen per component of frame j on its own and often picks the dense flow
-    # where the forward picked a model, so the check compared the model with the worse estimate:
-    # on rush 5 Hz tuning seeds 214 / 217 the pixels it dropped had forward errors of 0.5-1.4 px
-    # median (2-4 px of disagreement), and pixels moving 2-10 px a frame got a lifted pair at
-    # 0.52 / 0.46 of gt-moving pixels (0.79 / 0.66 without the check). False = every pixel checked.
-    models_skip_consistency: bool = False
-    # A lifted pair whose world-frame motion exceeds this speed x the pair's time step (m/s) is a
-    # lifting failure, not a mover: near the horizon the depth of frame j sampled at the match can
-    # be tens of metres off (rush 5 Hz tuning seed 217: pairs 150 m away moved 45 m in 0.2 s).
-    # 0 = off.
-    max_object_speed: float = 0.0
     # Depth of frame j is sampled bilinearly at x + f; the 4 neighbours must agree within this
     # relative tolerance (max/min - 1), else the sample straddles a depth edge (object boundary)
     # and mixes foreground with background, and the pixel is dropped.

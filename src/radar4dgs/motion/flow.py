@@ -20,10 +20,9 @@ Each dynamic-mask component gets the motion that explains the two images best (b
 before the consistency check): with ``FlowConfig.radar_guided`` and ``<prepared>/radar/objects.json``,
 among its dense flow, its single translation, its radar object's predicted motion and a warp matched
 around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
-(``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent (or, with
-``models_skip_consistency``, moved by an object model) & reliable & valid depth in both frames &
-(``max_object_speed``) a plausible world-frame motion. ``flow/config.json`` holds the resolved
-:class:`FlowConfig`; ``summary.json`` counts the components per chosen model (``models``).
+(``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
+frames. ``flow/config.json`` holds the resolved :class:`FlowConfig`; ``summary.json`` counts the
+components per chosen model (``models``).
 """
 
 from __future__ import annotations
@@ -149,10 +148,9 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         depth_i, depth_j: (H, W) metric z-depth. mask_i, mask_j: (H, W) bool dynamic masks.
         K: (3, 3). world_to_cam_i, world_to_cam_j: (4, 4).
         hints_i, hints_j: the radar objects of frames i and j (None or empty: no radar guidance).
-        dt: time of j minus time of i (s; 0 = unknown, and no ``max_object_speed`` check).
+        dt: time of j minus time of i (s).
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
-    dense_forward = forward
     failed = np.zeros(mask_i.shape, dtype=bool)
     models: dict[str, int] = {}
     if config.radar_guided:
@@ -165,31 +163,17 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         forward = rigid_object_flow(gray_i, gray_j, forward, mask_i, *rigid)
         backward = rigid_object_flow(gray_j, gray_i, backward, mask_j, *rigid)
     consistent = consistency_mask(forward, backward, config.consistency_alpha, config.consistency_beta)
-    checked = consistent | modelled_pixels(dense_forward, forward, mask_i) if config.models_skip_consistency \
-        else consistent
     reliable = reliable_pixels(gray_i, gray_j, forward, mask_i, failed, config)
     points_i, points_j, pixels = lift_flow(
         forward, depth_i, depth_j, K, world_to_cam_i, world_to_cam_j,
-        mask_i & checked & reliable, config.depth_edge_tolerance,
+        mask_i & consistent & reliable, config.depth_edge_tolerance,
         mask_j if config.require_dynamic_target else None)
-    if config.max_object_speed > 0 and dt != 0:
-        plausible = np.linalg.norm(points_j - points_i, axis=1) <= config.max_object_speed * abs(dt)
-        points_i, points_j, pixels = points_i[plausible], points_j[plausible], pixels[plausible]
     if config.outlier_filter:
         keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
                                     config.outlier_mad_factor, config.outlier_min_points,
                                     config.outlier_neighbours)
         points_i, points_j, pixels = points_i[keep], points_j[keep], pixels[keep]
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models)
-
-
-def modelled_pixels(dense: np.ndarray, stepped: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(H, W) bool pixels of ``mask`` whose motion the object step replaced: ``dense`` and
-    ``stepped`` (H, W, 2) are the flow before and after it. The steps copy the dense flow where
-    they keep it (:func:`.objects_flow.object_flow`, :func:`.rigid.rigid_object_flow`), so a
-    changed value is a model's; compared in float32, the steps' output type."""
-    changed = np.asarray(stepped, dtype=np.float32) != np.asarray(dense, dtype=np.float32)
-    return np.asarray(mask, dtype=bool) & np.any(changed, axis=-1)
 
 
 def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> PairFlow:
