@@ -1,0 +1,132 @@
+"""Does the pseudo scene flow need more pairs or better ones? (issue 21). Trains a hard-traffic seed at
+the full ``small`` preset on its prepared folder with the flow pairs changed in one way each:
+
+    python benchmarks/flow_coverage.py --seed 214 --arms prepared accurate filled [--work W] [--out JSON]
+
+- ``prepared``: the pairs as prepared (today's defaults);
+- ``accurate``: the same pixels and start points, each pair's motion replaced by the generator's true
+  motion of that pixel (what perfect motion is worth at today's coverage);
+- ``filled``: today's pairs plus every dynamic-mask pixel without one (finite depth, not on a depth
+  edge) moved by the median 3-D motion of its mask component's pairs (what more coverage is worth).
+
+Each arm is a copy of the prepared folder (``W/seed<N>/prepared-<arm>``) trained into
+``W/seed<N>/run-<arm>`` with one thread; finished runs are reused. Prints and writes (``--out``) the
+novel-view PSNR* and its split by image motion, with the pairs' count, coverage of the ground-truth
+moving pixels and scene-flow error. The evaluation-only truth (``gt/``) builds the ``accurate`` arm;
+it is never a method.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from radar4dgs.evaluate.motion_bins import run_psnr_by_image_motion
+from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.scene import read_scene
+from radar4dgs.motion.flow import load_depth, load_mask
+from radar4dgs.motion.lift import backproject, sample_depth
+from radar4dgs.motion.metrics import motion_frontend_metrics
+from radar4dgs.motion.truth import gt_scene_flow
+from reconstruct import prepare_scene, train_and_eval
+
+RESULTS = Path(__file__).parent / "results" / "flow-coverage.json"
+
+
+def accurate_pairs(scene, pair: dict) -> dict:
+    """``pair`` (a flow/*.npz as a dict) with each pair's motion the truth at its pixel; pairs whose
+    pixel has no true motion are dropped."""
+    world_i, world_j, valid = gt_scene_flow(scene, int(pair["index_i"]), int(pair["index_j"]))
+    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
+    known = valid[rows, cols]
+    start = pair["points_i"].astype(np.float64)
+    moved = start + (world_j - world_i)[rows, cols]
+    return {**pair, "points_i": start[known].astype(np.float32), "points_j": moved[known].astype(np.float32),
+            "pixels": pair["pixels"][known]}
+
+
+def filled_pairs(scene, prepared: Path, pair: dict, edge_tolerance: float = 0.1) -> dict:
+    """``pair`` plus a pair for every mask pixel of frame i without one (finite depth off depth
+    edges), moved by the median 3-D motion of its mask component's pairs (components with < 3 none)."""
+    index = int(pair["index_i"])
+    mask = load_mask(scene, index, "prepared", prepared)
+    depth = load_depth(scene, index, "prepared", prepared)
+    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
+    has_pair = np.zeros_like(mask)
+    has_pair[rows, cols] = True
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    pair_label = labels[rows, cols]
+    motion = (pair["points_j"] - pair["points_i"]).astype(np.float64)
+    fill_rows, fill_cols = np.nonzero(mask & ~has_pair & np.isfinite(depth) & (depth > 0))
+    pixels = np.stack([fill_cols, fill_rows], axis=1).astype(np.float64)
+    _, off_edges = sample_depth(depth, pixels, edge_tolerance)
+    pixels, fill_label = pixels[off_edges], labels[fill_rows[off_edges], fill_cols[off_edges]]
+    starts, ends, kept = [pair["points_i"].astype(np.float64)], [pair["points_j"].astype(np.float64)], [pair["pixels"]]
+    for label in np.unique(fill_label):
+        if (pair_label == label).sum() < 3:
+            continue
+        chosen = pixels[fill_label == label]
+        start = backproject(chosen, depth[chosen[:, 1].astype(np.int64), chosen[:, 0].astype(np.int64)],
+                            scene.camera.K, scene.world_to_camera(index))
+        starts.append(start)
+        ends.append(start + np.median(motion[pair_label == label], axis=0))
+        kept.append(chosen.astype(np.float32))
+    return {**pair, "points_i": np.concatenate(starts).astype(np.float32),
+            "points_j": np.concatenate(ends).astype(np.float32), "pixels": np.concatenate(kept)}
+
+
+def make_arm(scene, prepared: Path, arm: str) -> Path:
+    """The prepared folder of ``arm`` (a copy of ``prepared`` with its flow pairs changed)."""
+    if arm == "prepared":
+        return prepared
+    out = prepared.with_name(f"prepared-{arm}")
+    if (out / "done").is_file():
+        return out
+    if out.exists():
+        shutil.rmtree(out)
+    shutil.copytree(prepared, out)
+    for path in sorted((out / "flow").glob("*.npz")):
+        with np.load(path, allow_pickle=False) as data:
+            pair = {key: data[key] for key in data.files}
+        pair = accurate_pairs(scene, pair) if arm == "accurate" else filled_pairs(scene, prepared, pair)
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **pair)
+        path.write_bytes(buffer.getvalue())
+    (out / "done").write_text("")
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seed", type=int, default=214, help="a hard-traffic (rush, 5 Hz) tuning seed")
+    parser.add_argument("--arms", nargs="+", choices=("prepared", "accurate", "filled"),
+                        default=["prepared", "accurate", "filled"])
+    parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-flow-coverage"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    scene_dir, prepared, _ = prepare_scene(args.seed, "small", args.work, "rush", 5.0)
+    scene = read_scene(scene_dir)
+    rows = json.loads(args.out.read_text())["rows"] if args.out.is_file() else []
+    for arm in args.arms:
+        folder = make_arm(scene, prepared, arm)
+        front = motion_frontend_metrics(scene, folder)
+        result = train_and_eval(scene_dir, folder, prepared.with_name(f"run-{arm}"), "small", "ours", threads=1)
+        bins = run_psnr_by_image_motion(prepared.with_name(f"run-{arm}"))["nvs"]
+        row = {"seed": args.seed, "arm": arm, "budget": "small, 1800 iterations",
+               "nvs_psnr_dyn": result["nvs_psnr_dyn"], "nvs_psnr": result["nvs_psnr"],
+               "nvs_psnr_dyn_by_motion": {f"{b['low']}-{b['high']}": b["psnr"] for b in bins},
+               "sceneflow_coverage": front["sceneflow_coverage"],
+               "sceneflow_epe_dynamic": front["sceneflow_epe_dynamic"]}
+        print(json.dumps(row), flush=True)
+        rows = [r for r in rows if (r["seed"], r["arm"]) != (args.seed, arm)] + [row]
+        atomic_write_json(args.out, {"description": __doc__, "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
