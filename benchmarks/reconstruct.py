@@ -183,8 +183,9 @@ def main() -> None:
 
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
     results.setdefault("cells", {})
-    results.update({"preset": args.preset, "threads": os.cpu_count(), "traffic": args.traffic, "fps": args.fps,
-                    "set": args.set, "prepare_set": args.prepare_set})
+    # "threads" is each training's torch thread count (None: the preset's), "cpus" the machine's.
+    results.update({"preset": args.preset, "threads": args.threads, "cpus": os.cpu_count(), "traffic": args.traffic,
+                    "fps": args.fps, "set": args.set, "prepare_set": args.prepare_set})
     for seed in args.seeds:
         demo = run_demo(seed, args.preset, args.work) if seed == args.demo_seed else {}
         if demo:
