@@ -19,7 +19,6 @@ it is never a method.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import shutil
 from pathlib import Path
@@ -28,7 +27,7 @@ import cv2
 import numpy as np
 
 from radar4dgs.evaluate.motion_bins import run_psnr_by_image_motion
-from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.atomic import atomic_save_npz, atomic_write_json
 from radar4dgs.io.scene import read_scene
 from radar4dgs.motion.flow import load_depth, load_mask
 from radar4dgs.motion.lift import backproject, sample_depth
@@ -95,9 +94,7 @@ def make_arm(scene, prepared: Path, arm: str) -> Path:
         with np.load(path, allow_pickle=False) as data:
             pair = {key: data[key] for key in data.files}
         pair = accurate_pairs(scene, pair) if arm == "accurate" else filled_pairs(scene, prepared, pair)
-        buffer = io.BytesIO()
-        np.savez_compressed(buffer, **pair)
-        path.write_bytes(buffer.getvalue())
+        atomic_save_npz(path, pair)
     (out / "done").write_text("")
     return out
 
@@ -116,8 +113,9 @@ def main() -> None:
     for arm in args.arms:
         folder = make_arm(scene, prepared, arm)
         front = motion_frontend_metrics(scene, folder)
-        result = train_and_eval(scene_dir, folder, prepared.with_name(f"run-{arm}"), "small", "ours", threads=1)
-        bins = run_psnr_by_image_motion(prepared.with_name(f"run-{arm}"))["nvs"]
+        run = prepared.with_name(f"run-{arm}")
+        result = train_and_eval(scene_dir, folder, run, "small", "ours", threads=1)
+        bins = run_psnr_by_image_motion(run)["nvs"]
         row = {"seed": args.seed, "arm": arm, "budget": "small, 1800 iterations",
                "nvs_psnr_dyn": result["nvs_psnr_dyn"], "nvs_psnr": result["nvs_psnr"],
                "nvs_psnr_dyn_by_motion": {f"{b['low']}-{b['high']}": b["psnr"] for b in bins},

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from radar4dgs.io import atomic
@@ -14,6 +15,7 @@ from radar4dgs.io.atomic import (
     TEMP_NAME,
     atomic_directory,
     atomic_path,
+    atomic_save_npz,
     atomic_save_torch,
     dead_temporary,
     pid_alive,
@@ -97,3 +99,21 @@ def test_a_failed_write_leaves_nothing(tmp_path):
     with pytest.raises(RuntimeError), atomic_directory(tmp_path / "depth"):
         raise RuntimeError("killed")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("compressed", [True, False])
+def test_an_npz_round_trips_and_leaves_no_temporary(tmp_path, compressed):
+    # "path" and "compressed" as array names: the arrays are a mapping, not keyword arguments.
+    arrays = {"path": np.arange(6, dtype=np.float32).reshape(2, 3), "compressed": np.bool_(True), "index": np.int64(4)}
+    written = atomic_save_npz(tmp_path / "pair.npz", arrays, compressed=compressed)
+    with np.load(written, allow_pickle=False) as data:
+        assert sorted(data.files) == sorted(arrays)
+        for key, value in arrays.items():
+            assert data[key].dtype == np.asarray(value).dtype and np.array_equal(data[key], value)
+    assert [p.name for p in tmp_path.iterdir()] == ["pair.npz"]
+
+
+def test_a_compressed_npz_is_smaller(tmp_path):
+    zeros = {"zeros": np.zeros((200, 200))}
+    compressed = atomic_save_npz(tmp_path / "compressed.npz", zeros).stat().st_size
+    assert compressed * 10 < atomic_save_npz(tmp_path / "plain.npz", zeros, compressed=False).stat().st_size

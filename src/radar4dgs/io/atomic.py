@@ -24,7 +24,7 @@ import shutil
 import socket
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -173,6 +173,14 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
 def atomic_save_npy(path: str | os.PathLike, array: np.ndarray) -> Path:
     buffer = io.BytesIO()
     np.save(buffer, np.ascontiguousarray(array), allow_pickle=False)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def atomic_save_npz(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], compressed: bool = True) -> Path:
+    """``arrays`` as an ``.npz`` at ``path`` (``np.savez_compressed``, or ``np.savez`` when not
+    ``compressed``) through a temporary file; a mapping, so an array may be called anything."""
+    buffer = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buffer, **arrays)
     return atomic_write_bytes(path, buffer.getvalue())
 
 

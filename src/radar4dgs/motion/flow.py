@@ -27,7 +27,6 @@ components per chosen model (``models``).
 
 from __future__ import annotations
 
-import io
 import time
 from pathlib import Path
 from typing import Callable, Iterable, NamedTuple
@@ -35,7 +34,7 @@ from typing import Callable, Iterable, NamedTuple
 import numpy as np
 
 from radar4dgs.config import to_dict
-from radar4dgs.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from radar4dgs.io.atomic import atomic_directory, atomic_save_npz, atomic_write_json
 from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene_files import FLOW_MASKS
 from radar4dgs.motion.config import FlowConfig
@@ -93,13 +92,6 @@ def load_mask(scene, index: int, source: str, prepared_dir: str | Path | None,
                                 f"front end first, or set mask_source='oracle' to use the scene's "
                                 f"gt/dynamic_mask)")
     return read_mask_png(path, (scene.camera.height, scene.camera.width))
-
-
-def _npz_bytes(**arrays: np.ndarray) -> bytes:
-    """The bytes of a compressed ``.npz`` holding ``arrays`` (written atomically by the caller)."""
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)
-    return buffer.getvalue()
 
 
 def _frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
@@ -272,7 +264,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
                 scene.frames[j].timestamp - scene.frames[i].timestamp)
         name = scene.frames[i].name
-        atomic_write_bytes(out / f"{name}.npz", _npz_bytes(
+        atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
             points_i=result.points_i.astype(np.float32), points_j=result.points_j.astype(np.float32),
             pixels=result.pixels.astype(np.float32), index_i=np.int64(i), index_j=np.int64(j),

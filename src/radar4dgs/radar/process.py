@@ -15,7 +15,6 @@ Outputs (``out_dir`` is ``<prepared>/radar``):
 
 from __future__ import annotations
 
-import io
 import math
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -23,7 +22,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from radar4dgs.config import to_dict
-from radar4dgs.io.atomic import atomic_write_bytes, atomic_write_json
+from radar4dgs.io.atomic import atomic_save_npz, atomic_write_json
 from radar4dgs.radar.classify import classify_dynamic
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
@@ -77,12 +76,6 @@ def smooth_velocities(timestamps: np.ndarray, fits: list[EgoMotion], config: Rad
     return out
 
 
-def _save_npz(path: Path, **arrays: np.ndarray) -> None:
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    atomic_write_bytes(path, buffer.getvalue())
-
-
 def _finite_or_none(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
@@ -119,9 +112,10 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
             # Filled-in frame: no own covariance; borrow a loose one so thresholds stay finite.
             used = dataclasses.replace(used, covariance=np.eye(3) * (10 * config.noise_std) ** 2)
         dynamic, comp = classify_dynamic(xyz, v_r, used, config)
-        _save_npz(out_dir / f"{scene.frames[i].name}.npz", ego_velocity=used.velocity.astype(np.float64),
-                  covariance=used.covariance.astype(np.float64), ok=np.bool_(fit.ok),
-                  inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32))
+        atomic_save_npz(out_dir / f"{scene.frames[i].name}.npz", dict(
+            ego_velocity=used.velocity.astype(np.float64), covariance=used.covariance.astype(np.float64),
+            ok=np.bool_(fit.ok), inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32)),
+            compressed=False)
         detections.append(detect_objects(xyz, comp, dynamic, scene.radar_to_world(i), config.objects,
                                          seed=config.seed + i))
         frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
