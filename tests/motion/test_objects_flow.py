@@ -307,3 +307,56 @@ def test_by_default_the_radar_prediction_must_beat_the_dense_flow_by_a_tenth(rad
     gray_a, gray_b, pixels, candidates = _graded_candidates({"dense": 120, "radar": radar_grey})
     model, _ = choose_candidate(gray_a, gray_b, pixels, candidates, 0.9, 0.25)
     assert model == expected
+
+
+def nearest_lifted_flow(flow: np.ndarray, sources: np.ndarray, row: int, col: int) -> set[tuple[float, float]]:
+    """Naive reference: the flows of every source pixel at the least distance from (row, col)."""
+    rows, cols = np.nonzero(sources)
+    distance = (rows - row) ** 2 + (cols - col) ** 2
+    nearest = distance == distance.min()
+    return {tuple(v) for v in flow[rows[nearest], cols[nearest]].tolist()}
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), lifted_share=st.floats(0.15, 0.9))
+def test_rejected_pixels_take_their_nearest_lifted_neighbours_flow_within_their_object(seed, lifted_share):
+    from radar4dgs.motion.objects_flow import fill_rejected_flow
+
+    rng = np.random.default_rng(seed)
+    mask = np.zeros((30, 60), dtype=bool)
+    mask[5:25, 4:24] = True  # object A
+    mask[5:25, 30:56] = True  # object B, a gap of 6 px from A
+    flow = rng.normal(0.0, 20.0, (30, 60, 2)).astype(np.float32)
+    lifted = mask & (rng.random(mask.shape) < lifted_share)
+    lifted[:, :24] &= rng.random() < 0.5  # sometimes A has no lifted pixel at all: left as it was
+    rejected = mask & ~lifted & (rng.random(mask.shape) < 0.7)
+    filled_flow, filled = fill_rejected_flow(flow, mask, lifted, rejected, min_lifted=20)
+    for component in (np.s_[:, :27], np.s_[:, 27:]):
+        part = np.zeros_like(mask)
+        part[component] = True
+        enough = (lifted & part).sum() >= max(20, 0.1 * (mask & part).sum())
+        assert np.array_equal(filled & part, rejected & part if enough else np.zeros_like(mask))
+        for row, col in zip(*np.nonzero(filled & part), strict=True):
+            assert tuple(filled_flow[row, col].tolist()) in nearest_lifted_flow(flow, lifted & part, row, col)
+    assert np.array_equal(filled_flow[~filled], flow[~filled])  # lifted, unrejected and off-mask pixels keep theirs
+    off, nothing = fill_rejected_flow(flow, mask, lifted, rejected, min_lifted=0)
+    assert np.array_equal(off, flow) and not nothing.any()
+
+
+def test_the_fill_changes_the_stored_flow_of_rejected_pixels_not_the_lifted_pairs():
+    pair = object_pair(shift=8.0, scale=1.0)
+    inputs = pair_inputs(pair)
+    # No radar or translation step: the checks reject a tenth of the dense flow on the object.
+    config = {"radar_guided": False, "rigid_objects": False}
+    unfilled = pair_scene_flow(FlowConfig(fill_min_lifted=0, **config), **inputs)
+    filled = pair_scene_flow(FlowConfig(**config), **inputs)
+    for a, b in zip(unfilled[1:6], filled[1:6], strict=True):  # checks, pairs and pixels
+        assert np.array_equal(a, b)
+    changed = filled.filled
+    assert np.array_equal(changed, pair["mask_a"] & ~(filled.consistent & filled.reliable))
+    assert changed.sum() > 50 and not unfilled.filled.any()
+    assert np.array_equal(filled.forward[~changed], unfilled.forward[~changed])
+    truth = pair["flow"][changed]
+    before = np.linalg.norm(unfilled.forward[changed] - truth, axis=1).mean()
+    after = np.linalg.norm(filled.forward[changed] - truth, axis=1).mean()
+    assert after < 0.6 * before  # 3.3 -> 1.6 px

@@ -15,13 +15,16 @@ images never supervise the field), with keys
     ``index_i``, ``index_j`` int; ``timestamp_i``, ``timestamp_j`` float64 (s)
 
     ``reliable``   (H, W) bool        not dropped as a photometric failure (objects_flow.reliable_pixels)
+    ``filled``     (H, W) bool        mask pixels the checks rejected whose ``flow`` is their nearest
+                                      lifted neighbour's (objects_flow.fill_rejected_flow)
 
 Each dynamic-mask component gets the motion that explains the two images best (both directions,
 before the consistency check): with ``FlowConfig.radar_guided`` and ``<prepared>/radar/objects.json``,
 among its dense flow, its single translation, its radar object's predicted motion and a warp matched
 around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
 (``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
-frames. ``flow/config.json`` holds the resolved :class:`FlowConfig`; ``summary.json`` counts the
+frames. The stored ``flow`` of mask pixels the checks reject is then filled from the lifted pixels of
+their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. ``flow/config.json`` holds the resolved :class:`FlowConfig`; ``summary.json`` counts the
 components per chosen model (``models``).
 """
 
@@ -40,7 +43,7 @@ from radar4dgs.io.scene_files import FLOW_MASKS
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
 from radar4dgs.motion.object_hints import ObjectHint, frame_hints
-from radar4dgs.motion.objects_flow import PairGeometry, object_flow, reliable_pixels
+from radar4dgs.motion.objects_flow import PairGeometry, fill_rejected_flow, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
 from radar4dgs.motion.truth import gt_scene_flow, image_flow, visible_surface
@@ -118,13 +121,14 @@ def _with_progress(pairs: list[tuple[int, int]], progress: bool | Callable[[Iter
 class PairFlow(NamedTuple):
     """One pair's pseudo scene flow (:func:`pair_scene_flow`)."""
 
-    forward: np.ndarray  # (H, W, 2) float32 flow i -> j after the object steps
+    forward: np.ndarray  # (H, W, 2) float32 flow i -> j after the object steps and the fill
     consistent: np.ndarray  # (H, W) bool forward-backward consistent
     points_i: np.ndarray  # (M, 3) float64 world points of the kept pixels at time i
     points_j: np.ndarray  # (M, 3) the same points at time j
     pixels: np.ndarray  # (M, 2) (u, v) of the kept pixels
     reliable: np.ndarray  # (H, W) bool not dropped as a photometric failure
     models: dict[str, int]  # components per chosen model (objects_flow.MODELS, "no_radar")
+    filled: np.ndarray | None = None  # (H, W) bool rejected mask pixels whose flow was filled
 
 
 def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray, forward: np.ndarray,
@@ -165,7 +169,11 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
                                     config.outlier_mad_factor, config.outlier_min_points,
                                     config.outlier_neighbours)
         points_i, points_j, pixels = points_i[keep], points_j[keep], pixels[keep]
-    return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models)
+    lifted = np.zeros(mask_i.shape, dtype=bool)
+    lifted[pixels[:, 1].astype(np.int64), pixels[:, 0].astype(np.int64)] = True
+    forward, filled = fill_rejected_flow(forward, mask_i, lifted, mask_i & ~(consistent & reliable),
+                                         config.fill_min_lifted)
+    return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models, filled)
 
 
 def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> PairFlow:
@@ -266,6 +274,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
+            filled=np.zeros_like(result.consistent) if result.filled is None else result.filled,
             points_i=result.points_i.astype(np.float32), points_j=result.points_j.astype(np.float32),
             pixels=result.pixels.astype(np.float32), index_i=np.int64(i), index_j=np.int64(j),
             timestamp_i=np.float64(scene.frames[i].timestamp),

@@ -318,3 +318,47 @@ def reliable_pixels(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, ma
         error = local_photometric_error(gray_a, gray_b, flow, mask, config.pixel_error_window)
         reliable &= ~(error > config.max_pixel_error)  # NaN (no evidence) is not a failure
     return reliable
+
+
+# A component needs this share of its pixels lifted before its rejected pixels take their flow: a
+# few surviving pixels on one end of a car say little about the other end.
+FILL_MIN_SHARE = 0.1
+
+
+def fill_rejected_flow(flow: np.ndarray, mask: np.ndarray, lifted: np.ndarray, rejected: np.ndarray,
+                       min_lifted: int) -> tuple[np.ndarray, np.ndarray]:
+    """The stored 2-D flow with each ``rejected`` mask pixel given the flow of its nearest ``lifted``
+    pixel of the same mask component (one object), for components with at least ``min_lifted``
+    lifted pixels and :data:`FILL_MIN_SHARE` of their pixels; 0 = off. The rejected pixels keep the
+    motion of whichever model failed the checks, which is mostly wrong where the checks say so (on
+    rush 5 Hz tuning seeds two thirds of the 2-D error sat there), while the lifted neighbours of the
+    same object passed every check. Only the stored map changes: nothing rejected is lifted.
+
+    Args:
+        flow: (H, W, 2) flow a -> b. mask: (H, W) bool dynamic mask of a. lifted: (H, W) bool its
+        pixels that became point pairs. rejected: (H, W) bool pixels the checks dropped.
+    Returns:
+        (H, W, 2) float32 flow (a copy) and (H, W) bool the pixels filled.
+    """
+    import cv2
+    from scipy import ndimage
+
+    out = np.array(flow, dtype=np.float32, copy=True)
+    filled = np.zeros(mask.shape, dtype=bool)
+    if min_lifted <= 0:
+        return out, filled
+    count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
+    for label in range(1, count):
+        component = labels == label
+        sources = component & lifted
+        targets = component & rejected
+        if not targets.any() or sources.sum() < max(min_lifted, FILL_MIN_SHARE * component.sum()):
+            continue
+        rows, cols = np.nonzero(component)
+        box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+        _, (near_rows, near_cols) = ndimage.distance_transform_edt(~sources[box], return_indices=True)
+        target_rows, target_cols = np.nonzero(targets[box])
+        out[box][target_rows, target_cols] = flow[box][near_rows[target_rows, target_cols],
+                                                       near_cols[target_rows, target_cols]]
+        filled[box][target_rows, target_cols] = True
+    return out, filled
