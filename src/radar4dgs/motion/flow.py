@@ -24,8 +24,9 @@ among its dense flow, its single translation, its radar object's predicted motio
 around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
 (``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
 frames. The stored ``flow`` of mask pixels the checks reject is then filled from the lifted pixels of
-their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. ``flow/config.json`` holds the resolved :class:`FlowConfig`; ``summary.json`` counts the
-components per chosen model (``models``).
+their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. ``flow/config.json``
+holds the resolved :class:`FlowConfig`; ``summary.json`` counts the components per chosen model
+(``models``).
 """
 
 from __future__ import annotations
