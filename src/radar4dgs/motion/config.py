@@ -149,10 +149,12 @@ class FlowConfig:
     # See max_pixel_error (px, odd).
     pixel_error_window: int = 5
     # The stored 2-D flow (not the lifted pairs) of mask pixels the checks reject: the flow of the
-    # nearest lifted pixel of their component, when it has at least this many lifted pixels and a
-    # tenth of its own (objects_flow.fill_rejected_flow). Rush 5 Hz tuning seeds 214-223: 2-D error
-    # on moving pixels 1.09 -> 0.91 px. 0 = off (the rejected model's motion stays).
+    # nearest lifted pixel of their component within fill_max_distance px, when the component has at
+    # least this many lifted pixels and a tenth of its own (objects_flow.fill_rejected_flow). Rush 5 Hz
+    # tuning seeds 214-223: 2-D error on moving pixels 1.09 -> 0.97 px. 0 = off.
     fill_min_lifted: int = 20
+    # See fill_min_lifted (px): beyond, an object's flow differs from its neighbour's (it turns, grows).
+    fill_max_distance: float = 10.0
     # Where metric depth comes from: "prepared" = <prepared>/depth/<frame>.npy (stage 3);
     # "oracle" = the scene's gt/depth (ablations and tests only).
     depth_source: Literal["prepared", "oracle"] = "prepared"

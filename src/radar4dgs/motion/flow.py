@@ -173,7 +173,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     lifted = np.zeros(mask_i.shape, dtype=bool)
     lifted[pixels[:, 1].astype(np.int64), pixels[:, 0].astype(np.int64)] = True
     forward, filled = fill_rejected_flow(forward, mask_i, lifted, mask_i & ~(consistent & reliable),
-                                         config.fill_min_lifted)
+                                         config.fill_min_lifted, config.fill_max_distance)
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models, filled)
 
 
