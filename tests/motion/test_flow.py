@@ -27,6 +27,8 @@ def test_prepare_flow_writes_pairs_of_training_frames(motion_scene, motion_prepa
         total += len(pair["pixels"])
     assert total > 0
     assert json.loads((motion_prepared / "flow" / "config.json").read_text())["depth_source"] == "oracle"
+    summary = json.loads((motion_prepared / "flow" / "summary.json").read_text())
+    assert [p["filled_pixels"] for p in summary["per_pair"]] == [int(p["filled"].sum()) for p in pairs]
     metrics = motion_frontend_metrics(motion_scene, motion_prepared)
     assert metrics["flow2d_pairs"] > 0
     assert 0 <= metrics["flow2d_epe_dynamic"] < 5.0  # pixels, on 160x90

@@ -286,6 +286,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
                          "dynamic_pixels": int(mask_i.sum()),
                          "consistent_fraction": float(result.consistent.mean()),
                          "dropped_pixels": int((mask_i & result.consistent & ~result.reliable).sum()),
+                         "filled_pixels": 0 if result.filled is None else int(result.filled.sum()),
                          "models": result.models})
     summary = {"pairs": len(pairs), "method": config.method,
                "flow_seconds_per_call": flow_seconds / max(2 * len(pairs), 1),
