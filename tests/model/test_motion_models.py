@@ -65,6 +65,17 @@ def test_temporal_visibility_closed_form():
                                torch.tensor([math.exp(-0.5), math.exp(-0.125)]))
 
 
+@settings(max_examples=40, deadline=None)
+@given(gap=st.floats(0.0, 0.5), flat=st.floats(0.0, 0.3), beta=st.floats(0.01, 0.3))
+def test_a_flat_top_window_is_the_gaussian_shifted_by_its_flat_part(gap, flat, beta):
+    tau = torch.tensor([0.5], dtype=torch.float64)
+    log_lifespan = torch.tensor([math.log(beta)], dtype=torch.float64)
+    expected = math.exp(-0.5 * (max(gap - flat, 0.0) / beta) ** 2)  # 1 within the flat part
+    for time in (0.5 - gap, 0.5 + gap):
+        assert abs(float(temporal_visibility(tau, log_lifespan, time, flat)[0]) - expected) < 1e-9
+    assert torch.equal(temporal_visibility(tau, log_lifespan, 0.3, 0.0), temporal_visibility(tau, log_lifespan, 0.3))
+
+
 def test_offset_field_starts_at_zero_and_learns():
     torch.manual_seed(0)
     field = OffsetField(BaselineConfig(offset_hidden=16, offset_layers=2), centre=np.array([10.0, 0, 0]), scale=20.0)

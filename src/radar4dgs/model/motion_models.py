@@ -38,9 +38,10 @@ def pvg_means(means: Tensor, velocity: Tensor, tau: Tensor, time: float, period:
     return means + velocity * (period / (2.0 * math.pi)) * torch.sin(phase)[:, None]
 
 
-def temporal_visibility(tau: Tensor, log_lifespan: Tensor, time: float) -> Tensor:
-    """(N,) ``exp(-0.5 ((t - tau) / beta)^2)`` with ``beta = exp(log_lifespan)``."""
-    return torch.exp(-0.5 * ((time - tau) / torch.exp(log_lifespan)) ** 2)
+def temporal_visibility(tau: Tensor, log_lifespan: Tensor, time: float, flat: float = 0.0) -> Tensor:
+    """(N,) ``exp(-0.5 (max(0, |t - tau| - flat) / beta)^2)`` with ``beta = exp(log_lifespan)``: fully
+    visible within ``flat`` (normalised time) of the life peak ``tau``, Gaussian beyond."""
+    return torch.exp(-0.5 * (((time - tau).abs() - flat).clamp_min(0.0) / torch.exp(log_lifespan)) ** 2)
 
 
 # --------------------------------------------------------------------------------------------

@@ -36,12 +36,18 @@ class SceneModel(nn.Module):
     no dynamic set), the deformation field (only "ours"), the sky map, the baselines' pieces:
     ``offsets`` (deformable) and ``baseline`` (their config: PVG's period), and ``actor_motion``
     (rigid actors: the dynamic Gaussians whose ``actor`` parameter is >= 0 move with their actor's
-    rigid motion instead of the field)."""
+    rigid motion instead of the field). ``key_times`` (the training frames' normalised times) and
+    ``window_fraction``: at a time ``t`` between training frames each dynamic Gaussian is fully
+    visible within ``window_fraction`` x (distance from ``t`` to the nearest training frame) of its life
+    peak (TrainConfig.held_out_window); at a training frame nothing changes."""
 
     def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
                  dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
-                 baseline: BaselineConfig | None = None, actor_motion: ActorMotion | None = None):
+                 baseline: BaselineConfig | None = None, actor_motion: ActorMotion | None = None,
+                 key_times: tuple[float, ...] | None = None, window_fraction: float = 0.0):
         super().__init__()
+        self.key_times = key_times
+        self.window_fraction = window_fraction
         self.static = static
         self.sky = sky
         self.field = field
@@ -79,7 +85,10 @@ class SceneModel(nn.Module):
         if gaussians.has("velocity"):
             g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
         if gaussians.has("log_lifespan"):
-            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time)
+            flat = 0.0
+            if name == "dynamic" and self.key_times and self.window_fraction > 0:
+                flat = self.window_fraction * min(abs(time - key) for key in self.key_times)
+            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time, flat)
         if self.offsets is not None:
             g["means"] = g["means"] + self.offsets(g["means"], time)
         if rigid is not None:
@@ -160,6 +169,8 @@ class SceneModel(nn.Module):
             "offsets": None if self.offsets is None else {k: v.cpu() for k, v in self.offsets.state_dict().items()},
             "baseline_config": to_dict(self.baseline),
             "actor_motion": None if self.actor_motion is None else self.actor_motion.state(),
+            "held_out_window": None if not self.key_times else {"key_times": list(self.key_times),
+                                                                 "fraction": self.window_fraction},
         }
 
     @classmethod
@@ -185,8 +196,9 @@ class SceneModel(nn.Module):
         actor_motion = None
         if payload.get("actor_motion") is not None:
             actor_motion = ActorMotion.from_state(payload["actor_motion"], device, dtype)
+        window = payload.get("held_out_window") or {}  # absent from models saved before it existed
         return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline,
-                   actor_motion)
+                   actor_motion, tuple(window.get("key_times", ())) or None, float(window.get("fraction", 0.0)))
 
 
 def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:

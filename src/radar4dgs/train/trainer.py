@@ -256,6 +256,8 @@ class Trainer:
                          f"(median speed {np.median(speeds):.1f} px per frame)")
             dynamic = with_lifespans(dynamic, self.times[frames], lifespan)
         state.model.dynamic = dynamic
+        state.model.key_times = tuple(float(self.times[i]) for i in self.train_indices)
+        state.model.window_fraction = self.config.held_out_window
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
         self.log(f"stage 2: {len(dynamic)} dynamic Gaussians moved to the canonical space")
