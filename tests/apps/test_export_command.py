@@ -52,12 +52,16 @@ def test_all_part_moves_the_dynamic_gaussians_with_the_field(trained, model, tmp
     # ... positions move, rotations, scales and colours are the stored ones ...
     for key in ("quats", "log_scales", "rgb"):
         np.testing.assert_array_equal(at_half[key], at_zero[key])
-    # ... and a dynamic Gaussian's opacity is its stored one times its visibility at that time.
+    # ... and a dynamic Gaussian's opacity is its stored one times its visibility at that time, with the
+    # held-out window of the model's training-frame times (t = 0.5 may lie between two of them).
     np.testing.assert_array_equal(at_half["opacity_logits"][:n_static], at_zero["opacity_logits"][:n_static])
+    assert model.key_times and model.window_fraction > 0
     with torch.no_grad():
         stored = torch.sigmoid(model.dynamic.params["opacity_logits"])
         for exported, time in ((at_half, 0.5), (at_zero, 0.0)):
-            visible = temporal_visibility(model.dynamic.params["tau"], model.dynamic.params["log_lifespan"], time)
+            flat = model.window_fraction * min(abs(time - key) for key in model.key_times)
+            visible = temporal_visibility(model.dynamic.params["tau"], model.dynamic.params["log_lifespan"], time,
+                                          flat)
             np.testing.assert_allclose(1 / (1 + np.exp(-exported["opacity_logits"][n_static:])),
                                        numpy(stored * visible), rtol=1e-4, atol=1e-6)
     quats = model.dynamic.params["quats"]
