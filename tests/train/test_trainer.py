@@ -200,7 +200,8 @@ def started_dynamic(prepared, tmp_path, **overrides):
 
 @pytest.mark.parametrize("lifespan", [0.2, 0.0])
 def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_path, lifespan):
-    state, frame_times = started_dynamic(prepared, tmp_path, dynamic_lifespan=lifespan)
+    # Without the held-out window: t0 + 0.4 need not be a training frame's time.
+    state, frame_times = started_dynamic(prepared, tmp_path, dynamic_lifespan=lifespan, held_out_window=0.0)
     dynamic = state.model.dynamic
     assert len(dynamic) == len(frame_times) > 0
     stored = dynamic.activated()["opacities"].detach()
@@ -218,6 +219,9 @@ def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_pat
     torch.testing.assert_close(at_own_time[same_frame], stored[same_frame])
     # 0.4 = two life spans later: exp(-0.5 * 2^2) of the stored opacity.
     torch.testing.assert_close(later[same_frame], stored[same_frame] * math.exp(-2.0))
+    # The trainer hands the model its training frames' times for the window (each copy's frame is one).
+    assert set(np.round(frame_times, 9)) <= set(np.round(state.model.key_times, 9))
+    assert state.model.window_fraction == 0.0
 
 
 def test_resume_matches_an_unbroken_run(prepared, tmp_path):
