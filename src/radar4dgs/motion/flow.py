@@ -129,7 +129,7 @@ class PairFlow(NamedTuple):
     pixels: np.ndarray  # (M, 2) (u, v) of the kept pixels
     reliable: np.ndarray  # (H, W) bool not dropped as a photometric failure
     models: dict[str, int]  # components per chosen model (objects_flow.MODELS, "no_radar")
-    filled: np.ndarray | None = None  # (H, W) bool rejected mask pixels whose flow was filled
+    filled: np.ndarray  # (H, W) bool rejected mask pixels whose flow was filled
 
 
 def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray, forward: np.ndarray,
@@ -192,7 +192,8 @@ def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> P
     kept = mask_i & consistent
     rows, cols = np.nonzero(kept)
     return PairFlow(forward.astype(np.float32), consistent, world_i[kept], world_j[kept],
-                    np.stack([cols, rows], axis=1).astype(np.float64), np.ones_like(consistent), {})
+                    np.stack([cols, rows], axis=1).astype(np.float64), np.ones_like(consistent), {},
+                    np.zeros_like(consistent))
 
 
 def prepare_flow(scene, prepared_dir: str | Path, config: FlowConfig | None = None,
@@ -275,7 +276,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
-            filled=np.zeros_like(result.consistent) if result.filled is None else result.filled,
+            filled=result.filled,
             points_i=result.points_i.astype(np.float32), points_j=result.points_j.astype(np.float32),
             pixels=result.pixels.astype(np.float32), index_i=np.int64(i), index_j=np.int64(j),
             timestamp_i=np.float64(scene.frames[i].timestamp),
@@ -286,7 +287,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
                          "dynamic_pixels": int(mask_i.sum()),
                          "consistent_fraction": float(result.consistent.mean()),
                          "dropped_pixels": int((mask_i & result.consistent & ~result.reliable).sum()),
-                         "filled_pixels": 0 if result.filled is None else int(result.filled.sum()),
+                         "filled_pixels": int(result.filled.sum()),
                          "models": result.models})
     summary = {"pairs": len(pairs), "method": config.method,
                "flow_seconds_per_call": flow_seconds / max(2 * len(pairs), 1),
