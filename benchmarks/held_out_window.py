@@ -23,7 +23,6 @@ from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import normalized_times, read_scene
 
 RUN_FILES = ("config.json", "history.json", "run.json", "model.pt")
-KEYS = ("recon_psnr_dyn", "nvs_psnr_dyn", "nvs_psnr")
 
 
 def scores(metrics: dict) -> dict:
@@ -32,18 +31,22 @@ def scores(metrics: dict) -> dict:
             (("recon", "psnr_dyn"), ("nvs", "psnr_dyn"), ("nvs", "psnr"))}
 
 
-def score_with_window(run: Path, fraction: float) -> dict:
-    """Evaluate a copy of ``run`` whose model renders with the held-out window ``fraction``."""
+def training_times(run: Path) -> list[float]:
+    """The normalised times of the run's scene's training frames (what the trainer gives the model)."""
     scene = read_scene(json.loads((run / "run.json").read_text())["scene"])
     times = normalized_times(scene)
+    return [float(times[i]) for i in scene.train_indices]
+
+
+def score_with_window(run: Path, key_times: list[float], fraction: float) -> dict:
+    """Evaluate a copy of ``run`` whose model renders with the held-out window ``fraction``."""
     with tempfile.TemporaryDirectory() as tmp:
         copy = Path(tmp) / "run"
         copy.mkdir()
         for name in RUN_FILES:
             shutil.copy(run / name, copy / name)
         saved = torch.load(copy / "model.pt", map_location="cpu", weights_only=True)
-        saved["model"]["held_out_window"] = {"key_times": [float(times[i]) for i in scene.train_indices],
-                                             "fraction": fraction}
+        saved["model"]["held_out_window"] = {"key_times": key_times, "fraction": fraction}
         torch.save(saved, copy / "model.pt")
         return scores(evaluate_run(copy, lpips=False, video=False, report=False, progress=False))
 
@@ -57,12 +60,13 @@ def main() -> None:
     rows = []
     for run in args.runs:
         before = scores(json.loads((run / "metrics.json").read_text()))
+        key_times = training_times(run)
         row = {"run": str(run), "as_trained": before,
-               "window": {f"{f:g}": score_with_window(run, f) for f in args.fractions}}
+               "window": {f"{f:g}": score_with_window(run, key_times, f) for f in args.fractions}}
         rows.append(row)
         for fraction, after in row["window"].items():
             print(f"{run}  window {fraction}: " + "  ".join(
-                f"{key} {before[key]:.2f} -> {after[key]:.2f}" for key in KEYS), flush=True)
+                f"{key} {value:.2f} -> {after[key]:.2f}" for key, value in before.items()), flush=True)
         atomic_write_json(args.out, {"command": "python benchmarks/held_out_window.py " + " ".join(
             str(r) for r in args.runs) + " --fractions " + " ".join(f"{f:g}" for f in args.fractions),
             "rows": rows, "mean_nvs_psnr_dyn_gain": {
