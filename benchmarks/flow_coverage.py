@@ -1,11 +1,17 @@
 """Does the pseudo scene flow need more pairs or better ones? (issue 21). Trains a hard-traffic seed at
 the full ``small`` preset on its prepared folder with the flow pairs changed in one way each:
 
-    python benchmarks/flow_coverage.py --seed 214 --arms prepared accurate filled [--work W] [--out JSON]
+    python benchmarks/flow_coverage.py --seed 214 --arms prepared accurate true-positions object-median filled
+        [--work W] [--out JSON]
 
 - ``prepared``: the pairs as prepared (today's defaults);
 - ``accurate``: the same pixels and start points, each pair's motion replaced by the generator's true
   motion of that pixel (what perfect motion is worth at today's coverage);
+- ``true-positions``: the same pixels, both ends of each pair the generator's true surface point (the
+  true depth as well as the true motion, so the start points leave the prepared depth the dynamic
+  Gaussians are initialised from);
+- ``object-median``: the same pixels and start points, each pair's motion the median motion of its mask
+  component's pairs (per-pair noise removed, a bias the object shares kept);
 - ``filled``: today's pairs plus every dynamic-mask pixel without one (finite depth, not on a depth
   edge) moved by the median 3-D motion of its mask component's pairs (what more coverage is worth).
 
@@ -36,6 +42,7 @@ from radar4dgs.motion.truth import gt_scene_flow
 from reconstruct import prepare_scene, train_and_eval
 
 RESULTS = Path(__file__).parent / "results" / "flow-coverage.json"
+ARMS = ("prepared", "accurate", "true-positions", "object-median", "filled")
 
 
 def accurate_pairs(scene, pair: dict) -> dict:
@@ -48,6 +55,26 @@ def accurate_pairs(scene, pair: dict) -> dict:
     moved = start + (world_j - world_i)[rows, cols]
     return {**pair, "points_i": start[known].astype(np.float32), "points_j": moved[known].astype(np.float32),
             "pixels": pair["pixels"][known]}
+
+
+def true_position_pairs(scene, pair: dict) -> dict:
+    """``pair`` with both ends of each pair the truth at its pixel (dropped where unknown)."""
+    world_i, world_j, valid = gt_scene_flow(scene, int(pair["index_i"]), int(pair["index_j"]))
+    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
+    known = valid[rows, cols]
+    return {**pair, "points_i": world_i[rows, cols][known].astype(np.float32),
+            "points_j": world_j[rows, cols][known].astype(np.float32), "pixels": pair["pixels"][known]}
+
+
+def object_median_pairs(scene, prepared: Path, pair: dict) -> dict:
+    """``pair`` with each pair's motion the median motion of its mask component's pairs."""
+    mask = load_mask(scene, int(pair["index_i"]), "prepared", prepared)
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    pair_label = labels[pair["pixels"][:, 1].astype(np.int64), pair["pixels"][:, 0].astype(np.int64)]
+    motion = (pair["points_j"] - pair["points_i"]).astype(np.float64)
+    for label in np.unique(pair_label):
+        motion[pair_label == label] = np.median(motion[pair_label == label], axis=0)
+    return {**pair, "points_j": (pair["points_i"].astype(np.float64) + motion).astype(np.float32)}
 
 
 def filled_pairs(scene, prepared: Path, pair: dict, edge_tolerance: float = 0.1) -> dict:
@@ -80,6 +107,13 @@ def filled_pairs(scene, prepared: Path, pair: dict, edge_tolerance: float = 0.1)
             "points_j": np.concatenate(ends).astype(np.float32), "pixels": np.concatenate(kept)}
 
 
+# Each arm's change of one pair: (scene, prepared folder, pair) -> pair.
+CHANGES = {"accurate": lambda scene, prepared, pair: accurate_pairs(scene, pair),
+           "true-positions": lambda scene, prepared, pair: true_position_pairs(scene, pair),
+           "object-median": object_median_pairs,
+           "filled": filled_pairs}
+
+
 def make_arm(scene, prepared: Path, arm: str) -> Path:
     """The prepared folder of ``arm`` (a copy of ``prepared`` with its flow pairs changed)."""
     if arm == "prepared":
@@ -93,7 +127,7 @@ def make_arm(scene, prepared: Path, arm: str) -> Path:
     for path in sorted((out / "flow").glob("*.npz")):
         with np.load(path, allow_pickle=False) as data:
             pair = {key: data[key] for key in data.files}
-        pair = accurate_pairs(scene, pair) if arm == "accurate" else filled_pairs(scene, prepared, pair)
+        pair = CHANGES[arm](scene, prepared, pair)
         atomic_save_npz(path, pair)
     (out / "done").write_text("")
     return out
@@ -102,8 +136,7 @@ def make_arm(scene, prepared: Path, arm: str) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seed", type=int, default=214, help="a hard-traffic (rush, 5 Hz) tuning seed")
-    parser.add_argument("--arms", nargs="+", choices=("prepared", "accurate", "filled"),
-                        default=["prepared", "accurate", "filled"])
+    parser.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
     parser.add_argument("--work", type=Path, default=Path("/tmp/radar4dgs-flow-coverage"))
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
