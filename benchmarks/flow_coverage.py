@@ -142,21 +142,26 @@ def main() -> None:
     args = parser.parse_args()
     scene_dir, prepared, _ = prepare_scene(args.seed, "small", args.work, "rush", 5.0)
     scene = read_scene(scene_dir)
-    rows = json.loads(args.out.read_text())["rows"] if args.out.is_file() else []
+    # Keep the file's other keys (references, notes on earlier rows); only rows and description change.
+    results = json.loads(args.out.read_text()) if args.out.is_file() else {}
+    rows = results.get("rows", [])
     for arm in args.arms:
         folder = make_arm(scene, prepared, arm)
         front = motion_frontend_metrics(scene, folder)
         run = prepared.with_name(f"run-{arm}")
         result = train_and_eval(scene_dir, folder, run, "small", "ours", threads=1)
         bins = run_psnr_by_image_motion(run)["nvs"]
-        row = {"seed": args.seed, "arm": arm, "budget": "small, 1800 iterations",
+        # Runs before the held-out window (TrainConfig.held_out_window) existed have no such key: 0.
+        window = json.loads((run / "config.json").read_text())["config"].get("held_out_window", 0.0)
+        row = {"seed": args.seed, "arm": arm, "budget": "small, 1800 iterations", "held_out_window": window,
                "nvs_psnr_dyn": result["nvs_psnr_dyn"], "nvs_psnr": result["nvs_psnr"],
                "nvs_psnr_dyn_by_motion": {f"{b['low']}-{b['high']}": b["psnr"] for b in bins},
                "sceneflow_coverage": front["sceneflow_coverage"],
                "sceneflow_epe_dynamic": front["sceneflow_epe_dynamic"]}
         print(json.dumps(row), flush=True)
-        rows = [r for r in rows if (r["seed"], r["arm"]) != (args.seed, arm)] + [row]
-        atomic_write_json(args.out, {"description": __doc__, "rows": rows})
+        rows = [r for r in rows if (r["seed"], r["arm"], r.get("held_out_window", 0.0)) != (args.seed, arm, window)]
+        rows.append(row)
+        atomic_write_json(args.out, {**results, "description": __doc__, "rows": rows})
 
 
 if __name__ == "__main__":
