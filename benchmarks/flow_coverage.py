@@ -18,10 +18,9 @@ the full ``small`` preset on its prepared folder with the flow pairs changed in 
 Each arm is a copy of the prepared folder (``W/seed<N>/prepared-<arm>``) trained into
 ``W/seed<N>/run-<arm>`` (``run-<arm>-train<K>`` for ``--train-seed K`` other than 0: the same arm trained
 from another random start, to tell a change from one run's luck) with one thread; finished runs are reused.
-Prints and writes (``--out``) the
-novel-view PSNR* and its split by image motion, with the pairs' count, coverage of the ground-truth
-moving pixels and scene-flow error. The evaluation-only truth (``gt/``) builds the ``accurate`` arm;
-it is never a method.
+Prints and writes (``--out``) the novel-view PSNR* and its split by image motion, with the pairs' count,
+coverage of the ground-truth moving pixels and scene-flow error. The evaluation-only truth (``gt/``)
+builds the ``accurate`` and ``true-positions`` arms; it is never a method.
 """
 
 from __future__ import annotations
@@ -47,32 +46,42 @@ RESULTS = Path(__file__).parent / "results" / "flow-coverage.json"
 ARMS = ("prepared", "accurate", "true-positions", "object-median", "filled")
 
 
+def truth_at_pairs(scene, pair: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The generator's true surface point of each pair's pixel at both times, (M, 3) each, and (M,) bool
+    where it is known (:func:`gt_scene_flow`'s ``valid``)."""
+    world_i, world_j, valid = gt_scene_flow(scene, int(pair["index_i"]), int(pair["index_j"]))
+    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
+    return world_i[rows, cols], world_j[rows, cols], valid[rows, cols]
+
+
+def pair_components(scene, prepared: Path, pair: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame i's prepared dynamic mask (H, W) bool, its 8-connected component labels (H, W) and the
+    (M,) label of each pair's pixel (one component is one object)."""
+    mask = load_mask(scene, int(pair["index_i"]), "prepared", prepared)
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    return mask, labels, labels[pair["pixels"][:, 1].astype(np.int64), pair["pixels"][:, 0].astype(np.int64)]
+
+
 def accurate_pairs(scene, pair: dict) -> dict:
     """``pair`` (a flow/*.npz as a dict) with each pair's motion the truth at its pixel; pairs whose
     pixel has no true motion are dropped."""
-    world_i, world_j, valid = gt_scene_flow(scene, int(pair["index_i"]), int(pair["index_j"]))
-    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
-    known = valid[rows, cols]
+    world_i, world_j, known = truth_at_pairs(scene, pair)
     start = pair["points_i"].astype(np.float64)
-    moved = start + (world_j - world_i)[rows, cols]
+    moved = start + (world_j - world_i)
     return {**pair, "points_i": start[known].astype(np.float32), "points_j": moved[known].astype(np.float32),
             "pixels": pair["pixels"][known]}
 
 
 def true_position_pairs(scene, pair: dict) -> dict:
     """``pair`` with both ends of each pair the truth at its pixel (dropped where unknown)."""
-    world_i, world_j, valid = gt_scene_flow(scene, int(pair["index_i"]), int(pair["index_j"]))
-    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
-    known = valid[rows, cols]
-    return {**pair, "points_i": world_i[rows, cols][known].astype(np.float32),
-            "points_j": world_j[rows, cols][known].astype(np.float32), "pixels": pair["pixels"][known]}
+    world_i, world_j, known = truth_at_pairs(scene, pair)
+    return {**pair, "points_i": world_i[known].astype(np.float32), "points_j": world_j[known].astype(np.float32),
+            "pixels": pair["pixels"][known]}
 
 
 def object_median_pairs(scene, prepared: Path, pair: dict) -> dict:
     """``pair`` with each pair's motion the median motion of its mask component's pairs."""
-    mask = load_mask(scene, int(pair["index_i"]), "prepared", prepared)
-    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    pair_label = labels[pair["pixels"][:, 1].astype(np.int64), pair["pixels"][:, 0].astype(np.int64)]
+    _, _, pair_label = pair_components(scene, prepared, pair)
     motion = (pair["points_j"] - pair["points_i"]).astype(np.float64)
     for label in np.unique(pair_label):
         motion[pair_label == label] = np.median(motion[pair_label == label], axis=0)
@@ -83,13 +92,10 @@ def filled_pairs(scene, prepared: Path, pair: dict, edge_tolerance: float = 0.1)
     """``pair`` plus a pair for every mask pixel of frame i without one (finite depth off depth
     edges), moved by the median 3-D motion of its mask component's pairs (components with < 3 none)."""
     index = int(pair["index_i"])
-    mask = load_mask(scene, index, "prepared", prepared)
+    mask, labels, pair_label = pair_components(scene, prepared, pair)
     depth = load_depth(scene, index, "prepared", prepared)
-    cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
     has_pair = np.zeros_like(mask)
-    has_pair[rows, cols] = True
-    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    pair_label = labels[rows, cols]
+    has_pair[pair["pixels"][:, 1].astype(np.int64), pair["pixels"][:, 0].astype(np.int64)] = True
     motion = (pair["points_j"] - pair["points_i"]).astype(np.float64)
     fill_rows, fill_cols = np.nonzero(mask & ~has_pair & np.isfinite(depth) & (depth > 0))
     pixels = np.stack([fill_cols, fill_rows], axis=1).astype(np.float64)
