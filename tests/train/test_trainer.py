@@ -11,6 +11,7 @@ from _prepared import prepared_tiny_scene
 
 from radar4dgs.config import preset
 from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.field import randomize_
 from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
@@ -222,6 +223,35 @@ def test_dynamic_gaussians_live_around_the_frame_that_saw_them(prepared, tmp_pat
     # The trainer hands the model its training frames' times for the window (each copy's frame is one).
     assert set(np.round(frame_times, 9)) <= set(np.round(state.model.key_times, 9))
     assert state.model.window_fraction == 0.0
+
+
+def test_own_time_dynamic_gaussians_start_at_their_frames_world_points(prepared, tmp_path):
+    scene, prep = prepared
+    states = {}
+    for positions in ("own-time", "canonical"):
+        trainer = Trainer(scene, prep, tmp_path / positions, tiny_config(dynamic_positions=positions),
+                          progress=False, log=lambda _: None)
+        trainer._load()
+        states[positions] = state = trainer._fresh_state()
+        randomize_(state.model.field, last_std=0.2, generator=torch.Generator().manual_seed(0))  # metres of motion
+        trainer._start_dynamic(state)
+    points = trainer._initial_points()
+    own, canonical = states["own-time"].model, states["canonical"].model
+    assert own.own_time_means and not canonical.own_time_means
+    world = torch.as_tensor(points["points"][points["dynamic"]], dtype=torch.float32)
+    frame_times = trainer.times[points["frame"][points["dynamic"]]]
+    torch.testing.assert_close(own.dynamic.params["means"].detach(), world)
+    with torch.no_grad():  # the canonical run's means are the same points moved by D_tau^-1
+        torch.testing.assert_close(canonical.field(canonical.dynamic.params["means"],
+                                                   torch.as_tensor(frame_times, dtype=torch.float32)),
+                                   world, rtol=0, atol=1e-4)
+    assert float((world - canonical.dynamic.params["means"].detach()).norm(dim=1).max()) > 0.1
+    # At its frame's time an own-time Gaussian is drawn where that frame saw it.
+    t0 = float(frame_times[0])
+    same_frame = torch.as_tensor(frame_times == t0)
+    with torch.no_grad():
+        drawn = own.set_at("dynamic", t0)["means"][same_frame]
+    torch.testing.assert_close(drawn, world[same_frame], rtol=0, atol=1e-4)
 
 
 def test_resume_matches_an_unbroken_run(prepared, tmp_path):

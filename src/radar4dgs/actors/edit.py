@@ -35,7 +35,8 @@ class EditedSceneModel(SceneModel):
     def __init__(self, model: SceneModel, removed, moved, retimed, frame_times: np.ndarray, duration: float,
                  sky=None):
         super().__init__(model.static, model.sky if sky is None else sky, model.field, model.dynamic,
-                         model.offsets, model.baseline, model.actor_motion)
+                         model.offsets, model.baseline, model.actor_motion, model.key_times, model.window_fraction,
+                         model.own_time_means)
         self.removed = removed  # (K,) long tensor of dynamic indices, or None
         self.moved = moved  # [(indices, heading (F,), (lateral, longitudinal))]
         self.retimed = retimed  # {actor id: (indices, kind, value)}
@@ -48,10 +49,10 @@ class EditedSceneModel(SceneModel):
         return float(min(max(t, 0.0), 1.0))
 
     def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,
-                     detach_static: bool = False):
+                     detach_static: bool = False, cull: bool = False):
         import torch
 
-        g = super().gaussians_at(time, include_static, include_dynamic, detach_static)
+        g = super().gaussians_at(time, include_static, include_dynamic, detach_static, cull)
         if not include_dynamic or self.dynamic is None or len(self.dynamic) == 0:
             return g
         start = len(self.static) if include_static else 0
@@ -59,7 +60,7 @@ class EditedSceneModel(SceneModel):
         own_time = {}
         for indices, kind, value in self.retimed.values():
             own = self.remapped_time(kind, value, time)
-            moved = self.set_at("dynamic", own)
+            moved = self.set_at("dynamic", own, cull)
             means[start + indices] = moved["means"][indices]
             opacities[start + indices] = moved["opacities"][indices]
             own_time[id(indices)] = own

@@ -355,9 +355,13 @@ class TrainConfig:
     # frame, so the field's error over long gaps blurs nothing. 0.05 is about 2.5 frames of 50 either
     # side (small seed 1, novel-view PSNR* 22.74 / 23.27 / 23.51 / 23.39 dB at 0.2 / 0.1 / 0.05 / 0.025).
     dynamic_lifespan: float = 0.05
-    # Ours: rendered between training frames, each copy is fully visible within this fraction of the distance
-    # to the nearest training frame (SceneModel.window_fraction); rush 5 Hz 214 / 217: PSNR* +0.21 / +0.36.
+    # Ours: rendered between training frames, each copy is fully visible within this fraction of the distance to
+    # the nearest training frame (SceneModel.window_fraction; rush 5 Hz 214 / 217: PSNR* +0.21 / +0.36).
     held_out_window: float = 0.25
+    # Ours: a dynamic mean is a point of the field's canonical space, drawn at t at D_t(x) ("canonical", the
+    # paper), or its position at its life peak tau, drawn at D_t(D_tau^-1(x)) ("own-time"): the motion terms
+    # fix only relative motion, so with "canonical" the image terms slide the dynamic set along the rays.
+    dynamic_positions: Literal["canonical", "own-time"] = "canonical"
     # Ours: dynamic Gaussians the field moves faster than this (px per frame at 320 px width) start with a
     # life span shortened in proportion, down to one frame (model_init.speed_scaled_lifespans); 0 = off.
     dynamic_lifespan_reference_px: float = 0.0
@@ -380,15 +384,9 @@ class TrainConfig:
     # whose actors move at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09 dB of novel-view
     # PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
-    # Ours, stage 3: the static Gaussians learn from the pixels outside the dynamic masks only, so
-    # they cannot bake in a car the dynamic ones under-explain (the static layer is what is left
-    # when actors are removed). Iterations alternate between a render whose dynamic-mask pixels
-    # give no image gradient (every Gaussian learns elsewhere, as stage 1) and a render with the
-    # static Gaussians frozen, scored on every pixel (the dynamic ones learn the cars). False, the
-    # default: the static Gaussians learn on every pixel in stage 3, because on tuning seed 101
-    # (realistic traffic, small, 600 iterations) the static layer under the removed cars
-    # scored 17.5 dB against 16.5, but novel-view PSNR fell from 24.79 to 24.42 dB and PSNR* from
-    # 18.96 to 18.86 (the static set gets half the updates); report seeds in docs/pipeline/training.md.
+    # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
+    # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
+    # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).
     static_outside_masks: bool = False
     # Seed of the initial subsampling, camera order, dropout and motion minibatches.
     seed: int = 0
@@ -472,6 +470,8 @@ class TrainConfig:
         if self.dynamic_lifespan < 0 or not 0.0 <= self.held_out_window <= 1.0:
             raise ValueError(f"need dynamic_lifespan >= 0 and held_out_window in [0, 1], got "
                              f"{self.dynamic_lifespan} and {self.held_out_window}")
+        if self.dynamic_positions == "own-time" and self.dynamic_lifespan <= 0:
+            raise ValueError("dynamic_positions='own-time' needs a life peak per Gaussian: dynamic_lifespan > 0")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.rigid_actors_smoothness < 0:

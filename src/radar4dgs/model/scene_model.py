@@ -29,6 +29,10 @@ from radar4dgs.render.config import RasterConfig
 # The rasterizer's depth range: the synthetic and real scenes reach ~150 m; sky is left to the map.
 NEAR_PLANE = 0.05
 FAR_PLANE = 1000.0
+# Dynamic Gaussians fainter than this at a time are not moved by the field there. The rasterizer culls
+# opacities below 1/255 (gsplat's ALPHA_THRESHOLD); this is 39 times lower, so even Gaussian dropout's
+# 1 / (1 - p) boost cannot bring a skipped one back above the rasterizer's threshold.
+FIELD_CULL_OPACITY = 1e-4
 
 
 class SceneModel(nn.Module):
@@ -39,13 +43,17 @@ class SceneModel(nn.Module):
     rigid motion instead of the field). ``key_times`` (the training frames' normalised times) and
     ``window_fraction``: at a time ``t`` between training frames each dynamic Gaussian is fully
     visible within ``window_fraction`` x (distance from ``t`` to the nearest training frame) of its life
-    peak (TrainConfig.held_out_window); at a training frame nothing changes."""
+    peak (TrainConfig.held_out_window); at a training frame nothing changes. ``own_time_means``
+    (TrainConfig.dynamic_positions "own-time"): the dynamic means are positions at each Gaussian's life
+    peak ``tau``, drawn at time t by the field's warp ``D_t(D_tau^-1(x))`` instead of ``D_t(x)``."""
 
     def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
                  dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
                  baseline: BaselineConfig | None = None, actor_motion: ActorMotion | None = None,
-                 key_times: tuple[float, ...] | None = None, window_fraction: float = 0.0):
+                 key_times: tuple[float, ...] | None = None, window_fraction: float = 0.0,
+                 own_time_means: bool = False):
         super().__init__()
+        self.own_time_means = own_time_means
         self.key_times = key_times
         self.window_fraction = window_fraction
         self.static = static
@@ -60,12 +68,13 @@ class SceneModel(nn.Module):
     def num_gaussians(self) -> int:
         return len(self.static) + (len(self.dynamic) if self.dynamic is not None else 0)
 
-    def set_at(self, name: str, time: float) -> dict[str, Tensor]:
+    def set_at(self, name: str, time: float, cull: bool = False) -> dict[str, Tensor]:
         """Activated Gaussians of set ``name`` ("static" or "dynamic") at normalised ``time``:
         ``means`` (N, 3) moved by whatever moves this set (the VGPT field for the dynamic set,
         its B-spline or PVG parameters, the offset MLP; a rigid actor's Gaussians by their actor's
         motion), ``opacities`` (N,) times the temporal visibility where the set has a life span, and
-        ``quats`` (turned with a rigid actor), ``scales``, ``colors``."""
+        ``quats`` (turned with a rigid actor), ``scales``, ``colors``. With ``cull`` (renders), dynamic
+        Gaussians too faint to be drawn at ``time`` keep their stored means and get opacity 0."""
         gaussians = getattr(self, name)
         g = gaussians.activated()
         p = gaussians.params
@@ -73,22 +82,29 @@ class SceneModel(nn.Module):
         canonical = g["means"]
         # Rigid actors' Gaussians: their means are positions at their actor's reference time.
         rigid = p["actor"].detach() >= 0 if self.actor_motion is not None and gaussians.has("actor") else None
-        if name == "dynamic" and self.field is not None:
-            if rigid is None:
-                g["means"] = self.field(g["means"], time)
-            else:  # the field only for the Gaussians it moves: most are rigid after the switch
-                moved = canonical.clone()
-                moved[~rigid] = self.field(canonical[~rigid], time)
-                g["means"] = moved
-        if gaussians.has("control"):
-            g["means"] = bspline_means(g["means"], p["control"], time)
-        if gaussians.has("velocity"):
-            g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
         if gaussians.has("log_lifespan"):
             flat = 0.0
             if name == "dynamic" and self.key_times and self.window_fraction > 0:
                 flat = self.window_fraction * min(abs(time - key) for key in self.key_times)
             g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time, flat)
+        if name == "dynamic" and self.field is not None:
+            # A render moves only the Gaussians the rasterizer would draw (the field costs as much as
+            # the rest of a CPU iteration at 30k Gaussians); the others get opacity 0 and are culled
+            # as before, so renders and gradients do not change.
+            g["means"] = canonical.clone()
+            moved = torch.ones_like(g["opacities"], dtype=torch.bool) if rigid is None else ~rigid
+            if cull:
+                drawn = g["opacities"].detach() >= FIELD_CULL_OPACITY
+                moved &= drawn
+                g["opacities"] = torch.where(drawn, g["opacities"], torch.zeros_like(g["opacities"]))
+            if self.own_time_means:
+                g["means"][moved] = self.field.warp(canonical[moved], p["tau"][moved], time)
+            else:
+                g["means"][moved] = self.field(canonical[moved], time)
+        if gaussians.has("control"):
+            g["means"] = bspline_means(g["means"], p["control"], time)
+        if gaussians.has("velocity"):
+            g["means"] = pvg_means(g["means"], p["velocity"], p["tau"], time, self.baseline.pvg_period)
         if self.offsets is not None:
             g["means"] = g["means"] + self.offsets(g["means"], time)
         if rigid is not None:
@@ -98,10 +114,10 @@ class SceneModel(nn.Module):
         return g
 
     def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,
-                     detach_static: bool = False) -> dict[str, Tensor]:
+                     detach_static: bool = False, cull: bool = False) -> dict[str, Tensor]:
         """Activated Gaussians of the scene at normalised ``time`` (:meth:`set_at` of each set):
         ``means`` (N, 3), ``quats`` (N, 4), ``scales`` (N, 3), ``opacities`` (N,), ``colors``
-        (N, 3), ``dynamic`` (N,) bool; static ones first."""
+        (N, 3), ``dynamic`` (N,) bool; static ones first. ``cull``: as :meth:`set_at`."""
         parts = []
         if include_static:
             static = self.set_at("static", time)
@@ -110,7 +126,7 @@ class SceneModel(nn.Module):
             static["dynamic"] = torch.zeros(len(self.static), dtype=torch.bool, device=static["means"].device)
             parts.append(static)
         if include_dynamic and self.dynamic is not None and len(self.dynamic) > 0:
-            dynamic = self.set_at("dynamic", time)
+            dynamic = self.set_at("dynamic", time, cull)
             dynamic["dynamic"] = torch.ones(len(self.dynamic), dtype=torch.bool, device=dynamic["means"].device)
             parts.append(dynamic)
         if not parts:
@@ -133,7 +149,7 @@ class SceneModel(nn.Module):
         ``means2d`` for densification) and ``n_static`` / ``n_dynamic``.
         """
         raster = raster or RasterConfig()
-        g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static)
+        g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static, cull=True)
         device, dtype = g["means"].device, g["means"].dtype
         opacities = g["opacities"]
         if keep is not None:
@@ -171,6 +187,7 @@ class SceneModel(nn.Module):
             "actor_motion": None if self.actor_motion is None else self.actor_motion.state(),
             "held_out_window": None if not self.key_times else {"key_times": list(self.key_times),
                                                                  "fraction": self.window_fraction},
+            "own_time_means": self.own_time_means,
         }
 
     @classmethod
@@ -198,7 +215,8 @@ class SceneModel(nn.Module):
             actor_motion = ActorMotion.from_state(payload["actor_motion"], device, dtype)
         window = payload.get("held_out_window") or {}  # absent from models saved before it existed
         return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline,
-                   actor_motion, tuple(window.get("key_times", ())) or None, float(window.get("fraction", 0.0)))
+                   actor_motion, tuple(window.get("key_times", ())) or None, float(window.get("fraction", 0.0)),
+                   bool(payload.get("own_time_means", False)))
 
 
 def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:

@@ -78,12 +78,14 @@ def gaussian_kwargs(config: TrainConfig, device, dtype) -> dict[str, Any]:
 
 def dynamic_gaussians(points: dict[str, np.ndarray], times: np.ndarray, deformation: DeformationField,
                       config: TrainConfig, device, dtype) -> GaussianSet:
-    """Dynamic Gaussians at the canonical positions of their frames' world points."""
+    """Dynamic Gaussians at the canonical positions of their frames' world points (at the world points
+    themselves with ``config.dynamic_positions`` "own-time")."""
     dyn = points["dynamic"]
     world = points["points"][dyn]
-    canonical = to_canonical(world, times[points["frame"][dyn]], deformation).double().cpu().numpy() \
-        if len(world) else world
-    return GaussianSet.from_points(canonical, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
+    means = world
+    if len(world) and config.dynamic_positions == "canonical":
+        means = to_canonical(world, times[points["frame"][dyn]], deformation).double().cpu().numpy()
+    return GaussianSet.from_points(means, points["colors"][dyn], **gaussian_kwargs(config, device, dtype))
 
 
 def with_lifespans(gaussians: GaussianSet, frame_times: np.ndarray, lifespan: float | np.ndarray,

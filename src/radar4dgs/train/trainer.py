@@ -2,8 +2,8 @@
 
 Stage 1: static Gaussians, sky and the deformation field (the field by ``L_flow`` and ``L_rad``
 only; the dynamic pixels are left out of the image losses, since no Gaussian explains them yet).
-Stage 2 starts by moving the dynamic Gaussians' initial world points into the canonical space with
-the field fitted so far; static Gaussians frozen, dynamic Gaussians, sky and field trained.
+Stage 2 adds the dynamic Gaussians (in the field's canonical space, or at their frames' times); static
+Gaussians frozen, dynamic Gaussians, sky and field trained.
 Stage 3: everything, plus the object loss.
 
 Loss per iteration (one training image):
@@ -108,8 +108,7 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
 
 
 def psnr_of(rgb: Tensor, image: Tensor) -> float:
-    mse = float(((rgb.detach().clamp(0, 1) - image) ** 2).mean())
-    return 10 * math.log10(1.0 / max(mse, 1e-10))
+    return -10 * math.log10(max(float(((rgb.detach().clamp(0, 1) - image) ** 2).mean()), 1e-10))
 
 
 # --------------------------------------------------------------------------------------------
@@ -258,9 +257,10 @@ class Trainer:
         state.model.dynamic = dynamic
         state.model.key_times = tuple(float(self.times[i]) for i in self.train_indices)
         state.model.window_fraction = self.config.held_out_window
+        state.model.own_time_means = self.config.dynamic_positions == "own-time"
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
-        self.log(f"stage 2: {len(dynamic)} dynamic Gaussians moved to the canonical space")
+        self.log(f"stage 2: {len(dynamic)} dynamic Gaussians ({self.config.dynamic_positions} means)")
 
     def _start_rigid_actors(self, state: RunState) -> None:
         """The dynamic Gaussians grouped into actors, each actor's moved by a rigid motion of its
