@@ -79,7 +79,7 @@ class SceneModel(nn.Module):
         g = gaussians.activated()
         p = gaussians.params
         time = float(time)
-        canonical = g["means"]
+        stored = g["means"]
         # Rigid actors' Gaussians: their means are positions at their actor's reference time.
         rigid = p["actor"].detach() >= 0 if self.actor_motion is not None and gaussians.has("actor") else None
         if gaussians.has("log_lifespan"):
@@ -91,16 +91,16 @@ class SceneModel(nn.Module):
             # A render moves only the Gaussians the rasterizer would draw (the field costs as much as
             # the rest of a CPU iteration at 30k Gaussians); the others get opacity 0 and are culled
             # as before, so renders and gradients do not change.
-            g["means"] = canonical.clone()
+            g["means"] = stored.clone()
             moved = torch.ones_like(g["opacities"], dtype=torch.bool) if rigid is None else ~rigid
             if cull:
                 drawn = g["opacities"].detach() >= FIELD_CULL_OPACITY
                 moved &= drawn
                 g["opacities"] = torch.where(drawn, g["opacities"], torch.zeros_like(g["opacities"]))
             if self.own_time_means:
-                g["means"][moved] = self.field.warp(canonical[moved], p["tau"][moved], time)
+                g["means"][moved] = self.field.warp(stored[moved], p["tau"][moved], time)
             else:
-                g["means"][moved] = self.field(canonical[moved], time)
+                g["means"][moved] = self.field(stored[moved], time)
         if gaussians.has("control"):
             g["means"] = bspline_means(g["means"], p["control"], time)
         if gaussians.has("velocity"):
@@ -108,7 +108,7 @@ class SceneModel(nn.Module):
         if self.offsets is not None:
             g["means"] = g["means"] + self.offsets(g["means"], time)
         if rigid is not None:
-            means, quats = self.actor_motion(canonical, g["quats"], p["actor"].detach().long().clamp(min=0), time)
+            means, quats = self.actor_motion(stored, g["quats"], p["actor"].detach().long().clamp(min=0), time)
             g["means"] = torch.where(rigid[:, None], means, g["means"])
             g["quats"] = torch.where(rigid[:, None], quats, g["quats"])
         return g

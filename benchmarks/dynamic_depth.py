@@ -1,0 +1,44 @@
+"""Where trained runs put their dynamic Gaussians in depth, against the synthetic scene's truth
+(:mod:`radar4dgs.evaluate.dynamic_depth`), beside each run's novel-view PSNR* from its metrics.json.
+
+    python benchmarks/dynamic_depth.py RUN [RUN ...] [--out JSON]
+
+Rows of runs already in the results file are replaced, others kept, so runs can be added a few at a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth
+from radar4dgs.io.atomic import atomic_write_json
+
+
+def run_row(run: Path) -> dict:
+    config = json.loads((run / "config.json").read_text())["config"]
+    metrics = json.loads((run / "metrics.json").read_text())
+    return {"run": str(run.resolve()), "scene": json.loads((run / "run.json").read_text())["scene"],
+            "train_seed": config["seed"], "dynamic_positions": config.get("dynamic_positions", "canonical"),
+            "nvs_psnr_dyn": metrics["nvs"]["psnr_dyn"], "recon_psnr_dyn": metrics["recon"]["psnr_dyn"],
+            "depth": run_dynamic_depth(run)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", type=Path, nargs="+")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/dynamic-depth.json"))
+    args = parser.parse_args()
+    rows = json.loads(args.out.read_text())["rows"] if args.out.is_file() else []
+    for run in args.runs:
+        row = run_row(run)
+        rows = [r for r in rows if r["run"] != row["run"]] + [row]
+        d = row["depth"]
+        print(f"{run}  {row['dynamic_positions']:9s} seed {row['train_seed']}  depth error median {d['median']:+.3f}  "
+              f"|p90| {d['p90_abs']:.3f}  >10 % behind {d['behind']:.2f}  PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
+        atomic_write_json(args.out, {"command": "python benchmarks/dynamic_depth.py RUN [RUN ...]", "rows": rows})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""How far the dynamic Gaussians sit from the true surface in the frames that saw them.
+
+A car drawn by Gaussians 2 m behind it looks right from the training camera that saw it (they lie on
+the same rays), but moves wrongly in the image between frames and from any other viewpoint: its
+parallax is that of a farther object. Images alone hardly constrain depth along the rays, so this is
+measured against the generator's true depth: each dynamic Gaussian, at the time of the training frame
+nearest its life peak, is projected into that frame; where it lands on a true moving pixel, its camera
+depth is compared with the true depth there.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from radar4dgs.io.scene import normalized_times, read_scene
+from radar4dgs.model.scene_model import load_model
+
+
+def depth_errors_in_frame(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, depth: np.ndarray,
+                          moving: np.ndarray) -> np.ndarray:
+    """Relative depth errors ``(z - z_true) / z_true`` of the points that land on a moving pixel.
+
+    Args:
+        points: (N, 3) world positions at the frame's time.
+        world_to_camera: (4, 4). K: (3, 3) pinhole intrinsics (pixel centres at integers).
+        depth: (H, W) true z-depth (m). moving: (H, W) bool, the true dynamic mask.
+    Returns:
+        (M,) float64, M <= N: positive where a point lies behind the surface.
+    """
+    cam = np.asarray(points, dtype=np.float64) @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    z = cam[:, 2]
+    front = z > 1e-6
+    uv = (cam[front] @ np.asarray(K, dtype=np.float64).T)[:, :2] / z[front, None]
+    pixel = np.round(uv).astype(np.int64)
+    height, width = depth.shape
+    inside = (pixel[:, 0] >= 0) & (pixel[:, 1] >= 0) & (pixel[:, 0] < width) & (pixel[:, 1] < height)
+    pixel, z = pixel[inside], z[front][inside]
+    truth = depth[pixel[:, 1], pixel[:, 0]]
+    on = moving[pixel[:, 1], pixel[:, 0]].astype(bool) & np.isfinite(truth) & (truth > 0)
+    return (z[on] - truth[on]) / truth[on]
+
+
+def summarize(errors: np.ndarray) -> dict:
+    """``median`` relative error (signed), ``p90_abs`` (90th percentile of its size), ``behind``
+    (share more than 10 % behind the surface) and ``gaussians`` (how many were counted)."""
+    if len(errors) == 0:
+        return {"median": None, "p90_abs": None, "behind": None, "gaussians": 0}
+    return {"median": float(np.median(errors)), "p90_abs": float(np.percentile(np.abs(errors), 90)),
+            "behind": float(np.mean(errors > 0.1)), "gaussians": int(len(errors))}
+
+
+@torch.no_grad()
+def run_dynamic_depth(run_dir: str | Path) -> dict:
+    """:func:`summarize` of a run's dynamic Gaussians against its synthetic scene's ``gt/depth`` and
+    ``gt/dynamic_mask`` (each Gaussian at its nearest training frame). Raises ValueError for a run
+    without dynamic Gaussians or a scene without that ground truth."""
+    root = Path(run_dir)
+    scene = read_scene(json.loads((root / "run.json").read_text())["scene"])
+    for name in ("gt/depth", "gt/dynamic_mask"):
+        if not scene.has(name):
+            raise ValueError(f"{scene.root}: no {name}, so no true depth of the movers to compare with")
+    model = load_model(root / "model.pt")
+    if model.dynamic is None or len(model.dynamic) == 0 or not model.dynamic.has("tau"):
+        raise ValueError(f"{root}: no dynamic Gaussians with life peaks (a baseline or static run?)")
+    times = np.asarray(normalized_times(scene))
+    frames = np.asarray(scene.train_indices)
+    tau = model.dynamic.params["tau"].detach().double().cpu().numpy()
+    nearest = frames[np.abs(tau[:, None] - times[frames][None, :]).argmin(axis=1)]
+    errors = []
+    for frame in np.unique(nearest):
+        means = model.set_at("dynamic", float(times[frame]))["means"].double().cpu().numpy()[nearest == frame]
+        errors.append(depth_errors_in_frame(means, scene.world_to_camera(int(frame)), scene.camera.K,
+                                            scene.load_optional("gt/depth", int(frame)),
+                                            scene.load_optional("gt/dynamic_mask", int(frame)) > 0))
+    return summarize(np.concatenate(errors))

@@ -1,0 +1,44 @@
+"""The dynamic Gaussians' depth against the true depth: points placed at known depths along the rays
+of known pixels give back exactly their relative offsets; points off the movers or behind the
+camera are not counted."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from radar4dgs.evaluate.dynamic_depth import depth_errors_in_frame, summarize
+
+WIDTH, HEIGHT, FOCAL = 40, 30, 50.0
+K = np.array([[FOCAL, 0.0, (WIDTH - 1) / 2], [0.0, FOCAL, (HEIGHT - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+def ray_point(u: int, v: int, z: float) -> np.ndarray:
+    """The camera-frame point at z-depth ``z`` that projects onto pixel (u, v)."""
+    return np.array([(u - K[0, 2]) * z / FOCAL, (v - K[1, 2]) * z / FOCAL, z])
+
+
+@settings(max_examples=25, deadline=None)
+@given(offsets=st.lists(st.floats(-0.5, 2.0), min_size=1, max_size=12), shift=st.floats(-5.0, 5.0))
+def test_points_on_the_movers_give_their_relative_depth_offsets(offsets, shift):
+    depth = np.full((HEIGHT, WIDTH), 20.0)
+    depth[5:25, 10:30] = np.linspace(6.0, 12.0, 20)[None, :]  # a slanted car
+    moving = np.zeros((HEIGHT, WIDTH), dtype=bool)
+    moving[5:25, 10:30] = True
+    pixels = [(10 + (3 * i) % 20, 5 + (7 * i) % 20) for i in range(len(offsets))]
+    on_car = [ray_point(u, v, depth[v, u] * (1 + o)) for (u, v), o in zip(pixels, offsets)]
+    elsewhere = [ray_point(2, 2, 20.0), ray_point(35, 28, 5.0), np.array([0.0, 0.0, -4.0])]  # road, road, behind
+    # The camera 'shift' metres along its axis from a world origin: world_to_camera moves points back.
+    world_to_camera = np.eye(4)
+    world_to_camera[2, 3] = -shift
+    world = np.array(on_car + elsewhere) - world_to_camera[:3, 3]
+    errors = depth_errors_in_frame(world, world_to_camera, K, depth, moving)
+    np.testing.assert_allclose(errors, offsets, atol=1e-9)
+
+
+def test_the_summary_counts_the_share_behind_the_surface():
+    summary = summarize(np.array([-0.05, 0.0, 0.05, 0.2, 0.3]))
+    assert summary == {"median": 0.05, "p90_abs": summary["p90_abs"], "behind": 0.4, "gaussians": 5}
+    np.testing.assert_allclose(summary["p90_abs"], np.percentile([0.05, 0.0, 0.05, 0.2, 0.3], 90))
+    assert summarize(np.zeros(0))["gaussians"] == 0
