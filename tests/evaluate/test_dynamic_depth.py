@@ -27,7 +27,7 @@ def test_points_on_the_movers_give_their_relative_depth_offsets(offsets, shift):
     moving = np.zeros((HEIGHT, WIDTH), dtype=bool)
     moving[5:25, 10:30] = True
     pixels = [(10 + (3 * i) % 20, 5 + (7 * i) % 20) for i in range(len(offsets))]
-    on_car = [ray_point(u, v, depth[v, u] * (1 + o)) for (u, v), o in zip(pixels, offsets)]
+    on_car = [ray_point(u, v, depth[v, u] * (1 + o)) for (u, v), o in zip(pixels, offsets, strict=True)]
     elsewhere = [ray_point(2, 2, 20.0), ray_point(35, 28, 5.0), np.array([0.0, 0.0, -4.0])]  # road, road, behind
     # The camera 'shift' metres along its axis from a world origin: world_to_camera moves points back.
     world_to_camera = np.eye(4)
