@@ -88,9 +88,9 @@ class SceneModel(nn.Module):
                 flat = self.window_fraction * min(abs(time - key) for key in self.key_times)
             g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time, flat)
         if name == "dynamic" and self.field is not None:
-            # A render moves only the Gaussians the rasterizer would draw (the field costs as much as
-            # the rest of a CPU iteration at 30k Gaussians); the others get opacity 0 and are culled
-            # as before, so renders and gradients do not change.
+            # A render moves only the Gaussians the rasterizer would draw (about half the dynamic set
+            # at a training frame); the others get opacity 0 and are culled as before, so renders and
+            # gradients do not change.
             g["means"] = stored.clone()
             moved = torch.ones_like(g["opacities"], dtype=torch.bool) if rigid is None else ~rigid
             if cull:
