@@ -18,6 +18,7 @@ import torch
 
 from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.scene_model import load_model
+from radar4dgs.motion.truth import project
 
 
 def depth_errors_in_frame(points: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray, depth: np.ndarray,
@@ -31,11 +32,9 @@ def depth_errors_in_frame(points: np.ndarray, world_to_camera: np.ndarray, K: np
     Returns:
         (M,) float64, M <= N: positive where a point lies behind the surface.
     """
-    cam = np.asarray(points, dtype=np.float64) @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
-    z = cam[:, 2]
+    uv, z = project(np.asarray(points, dtype=np.float64), K, world_to_camera)
     front = z > 1e-6
-    uv = (cam[front] @ np.asarray(K, dtype=np.float64).T)[:, :2] / z[front, None]
-    pixel = np.round(uv).astype(np.int64)
+    pixel = np.round(uv[front]).astype(np.int64)
     height, width = depth.shape
     inside = (pixel[:, 0] >= 0) & (pixel[:, 1] >= 0) & (pixel[:, 0] < width) & (pixel[:, 1] < height)
     pixel, z = pixel[inside], z[front][inside]
