@@ -9,8 +9,8 @@ and with dynamics switched off, check that a killed run resumes to the same metr
 Every cell (seed x method) is a run folder under --work, in the demo's layout
 (seed<N>/{scene, prepared, run, static}); finished cells are reused, so an interrupted benchmark
 continues where it stopped. For --demo-seed (default 1) the "ours" cell is `radar4dgs demo` itself,
-timed end to end. Prints a table and writes
-benchmarks/results/reconstruct.json after every cell.
+timed end to end, unless --set or --prepare-set is given (the demo takes neither). Prints a table
+and writes benchmarks/results/reconstruct.json after every cell.
 
 --resume-check SEED trains that seed's "ours" run in a child process, kills it (SIGKILL) once its
 first checkpoint exists, resumes it, evaluates it and compares with the unbroken run's metrics.
@@ -178,7 +178,8 @@ def main() -> None:
                         help="PrepareConfig fields of every scene, dotted (flow.method=oracle depth.source=oracle)")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
-    if args.traffic != "calm" or args.fps is not None:
+    # The demo takes neither --set nor --prepare-set: with either, its seed is trained like the others.
+    if args.traffic != "calm" or args.fps is not None or args.set or args.prepare_set:
         args.demo_seed = None
 
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
