@@ -1,5 +1,6 @@
 """Where trained runs put their dynamic Gaussians in depth, against the synthetic scene's truth
-(:mod:`radar4dgs.evaluate.dynamic_depth`), beside each run's novel-view PSNR* from its metrics.json.
+(:mod:`radar4dgs.evaluate.dynamic_depth`), beside each run's novel-view PSNR* from its metrics.json and
+the error of its prepared depth on the same moving pixels (the input the depth term pulls toward).
 
     python benchmarks/dynamic_depth.py RUN [RUN ...] [--out JSON]
 
@@ -12,7 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
-from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth
+from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth, run_prepared_depth
 from radar4dgs.io.atomic import atomic_write_json
 
 
@@ -22,7 +23,7 @@ def run_row(run: Path) -> dict:
     return {"run": str(run.resolve()), "scene": json.loads((run / "run.json").read_text())["scene"],
             "train_seed": config["seed"], "dynamic_positions": config.get("dynamic_positions", "canonical"),
             "nvs_psnr_dyn": metrics["nvs"]["psnr_dyn"], "recon_psnr_dyn": metrics["recon"]["psnr_dyn"],
-            "depth": run_dynamic_depth(run)}
+            "depth": run_dynamic_depth(run), "prepared_depth": run_prepared_depth(run)}
 
 
 def main() -> None:
@@ -36,7 +37,8 @@ def main() -> None:
         rows = [r for r in rows if r["run"] != row["run"]] + [row]
         d = row["depth"]
         print(f"{run}  {row['dynamic_positions']:9s} seed {row['train_seed']}  depth error median {d['median']:+.3f}  "
-              f"|p90| {d['p90_abs']:.3f}  >10 % behind {d['behind']:.2f}  PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
+              f"|p90| {d['p90_abs']:.3f}  >10 % behind {d['behind']:.2f}  (prepared depth "
+              f"{row['prepared_depth']['median']:+.3f})  PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
         atomic_write_json(args.out, {"command": "python benchmarks/dynamic_depth.py RUN [RUN ...]", "rows": rows})
 
 

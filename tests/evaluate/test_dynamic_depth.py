@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radar4dgs.evaluate.dynamic_depth import depth_errors_in_frame, summarize
+from radar4dgs.evaluate.dynamic_depth import depth_errors_in_frame, pixel_depth_errors, summarize
 
 WIDTH, HEIGHT, FOCAL = 40, 30, 50.0
 K = np.array([[FOCAL, 0.0, (WIDTH - 1) / 2], [0.0, FOCAL, (HEIGHT - 1) / 2], [0.0, 0.0, 1.0]])
@@ -42,3 +42,13 @@ def test_the_summary_counts_the_share_behind_the_surface():
     assert summary == {"median": 0.05, "p90_abs": summary["p90_abs"], "behind": 0.4, "gaussians": 5}
     np.testing.assert_allclose(summary["p90_abs"], np.percentile([0.05, 0.0, 0.05, 0.2, 0.3], 90))
     assert summarize(np.zeros(0))["gaussians"] == 0
+
+
+def test_pixel_depth_errors_count_only_moving_pixels_with_both_depths():
+    truth = np.full((3, 4), 10.0)
+    depth = np.array([[12.0, 9.0, np.nan, 10.0], [0.0, 11.0, 10.0, np.inf], [10.0, 10.0, 10.0, 10.0]])
+    truth[1, 2] = np.nan
+    moving = np.zeros((3, 4), dtype=bool)
+    moving[:2, :] = True  # the bottom row is road
+    # kept: (0,0) +0.2, (0,1) -0.1, (0,3) 0, (1,1) +0.1; dropped: NaN, 0, inf, NaN truth, not moving.
+    np.testing.assert_allclose(np.sort(pixel_depth_errors(depth, truth, moving)), [-0.1, 0.0, 0.1, 0.2])

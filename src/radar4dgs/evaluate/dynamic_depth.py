@@ -5,7 +5,9 @@ the same rays), but moves wrongly in the image between frames and from any other
 parallax is that of a farther object. Images alone hardly constrain depth along the rays, so this is
 measured against the generator's true depth: each dynamic Gaussian, at the time of the training frame
 nearest its life peak, is projected into that frame; where it lands on a true moving pixel, its camera
-depth is compared with the true depth there.
+depth is compared with the true depth there. The prepared (radar-scaled) depth, which the depth term
+pulls the Gaussians toward, is measured on the same pixels, so input error and training drift can be
+told apart.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import torch
 
 from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.model.scene_model import load_model
+from radar4dgs.motion.flow import load_depth
 from radar4dgs.motion.truth import project
 
 
@@ -41,6 +44,20 @@ def depth_errors_in_frame(points: np.ndarray, world_to_camera: np.ndarray, K: np
     truth = depth[pixel[:, 1], pixel[:, 0]]
     on = moving[pixel[:, 1], pixel[:, 0]].astype(bool) & np.isfinite(truth) & (truth > 0)
     return (z[on] - truth[on]) / truth[on]
+
+
+def pixel_depth_errors(depth: np.ndarray, truth: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """Relative errors ``(depth - truth) / truth`` on the moving pixels where both are finite and > 0.
+
+    Args:
+        depth, truth: (H, W) z-depth (m). moving: (H, W) bool.
+    Returns:
+        (M,) float64: positive where ``depth`` is too far.
+    """
+    depth, truth = np.asarray(depth, dtype=np.float64), np.asarray(truth, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        on = moving.astype(bool) & np.isfinite(depth) & np.isfinite(truth) & (depth > 0) & (truth > 0)
+    return (depth[on] - truth[on]) / truth[on]
 
 
 def summarize(errors: np.ndarray) -> dict:
@@ -76,3 +93,18 @@ def run_dynamic_depth(run_dir: str | Path) -> dict:
                                             scene.load_optional("gt/depth", int(frame)),
                                             scene.load_optional("gt/dynamic_mask", int(frame)) > 0))
     return summarize(np.concatenate(errors))
+
+
+def run_prepared_depth(run_dir: str | Path) -> dict:
+    """:func:`summarize` of the run's prepared depth on the true moving pixels of its training frames
+    (its count under ``pixels``)."""
+    root = Path(run_dir)
+    paths = json.loads((root / "run.json").read_text())
+    scene = read_scene(paths["scene"])
+    errors = [pixel_depth_errors(load_depth(scene, index, "prepared", paths["prepared"]),
+                                 scene.load_optional("gt/depth", index),
+                                 scene.load_optional("gt/dynamic_mask", index) > 0)
+              for index in scene.train_indices]
+    summary = summarize(np.concatenate(errors))
+    summary["pixels"] = summary.pop("gaussians")
+    return summary
