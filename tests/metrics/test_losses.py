@@ -13,6 +13,7 @@ from radar4dgs.metrics.losses import (
     flow_residual,
     huber_of_squared,
     inverse_depth_l1,
+    log_depth_l1,
     radar_loss,
     radar_residual,
     velocity_loss,
@@ -181,6 +182,15 @@ def test_image_losses_against_closed_forms():
     # Pixel (0, 0): |1/2 - 1/4| = 0.25; (0, 1): 0; (1, 0) NaN target; (1, 1) transparent.
     assert float(inverse_depth_l1(rendered, alpha, target, valid)) == pytest.approx(0.125)
     assert float(inverse_depth_l1(rendered, alpha, target, torch.zeros_like(valid))) == 0.0
+    # The same pixels in log depth: |log 2 - log 4| and 0.
+    assert float(log_depth_l1(rendered, alpha, target, valid)) == pytest.approx(math.log(2.0) / 2)
+    # Scale-free: 20 % too deep costs the same at 5 m and at 40 m; the inverse depth's cost falls 8x.
+    near, far = torch.full((1, 1), 5.0), torch.full((1, 1), 40.0)
+    one, every = torch.ones(1, 1), torch.ones(1, 1, dtype=torch.bool)
+    assert float(log_depth_l1(near * 1.2, one, near, every)) == pytest.approx(float(log_depth_l1(far * 1.2, one, far,
+                                                                                                 every)))
+    assert float(inverse_depth_l1(near * 1.2, one, near, every)) == pytest.approx(
+        8 * float(inverse_depth_l1(far * 1.2, one, far, every)))
     p = torch.tensor([0.9, 0.2])
     expected = -(math.log(0.9) + math.log(0.8)) / 2
     assert float(binary_cross_entropy(p, torch.tensor([True, False]))) == pytest.approx(expected, rel=1e-6)

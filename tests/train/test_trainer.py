@@ -187,6 +187,15 @@ def test_velocity_term_reaches_the_trainer_only_with_a_weight(prepared):
     assert all(torch.equal(without[k], with_velocity[k]) for k in without)
 
 
+def test_dynamic_depth_term_is_logged_only_where_the_movers_train(prepared, tmp_path):
+    scene, prep = prepared
+    state = train_run(scene, prep, tmp_path / "run", tiny_config(losses={"dynamic_depth_weight": 0.1}), progress=False)
+    logged = [h for h in state.history if "total" in h]
+    assert not any("dynamic_depth" in h for h in logged if h["stage"] == 1)
+    later = [h["dynamic_depth"] for h in logged if h["stage"] > 1 and "dynamic_depth" in h]
+    assert later and all(math.isfinite(v) and v > 0 for v in later)
+
+
 def started_dynamic(prepared, tmp_path, **overrides):
     """A fresh tiny run's state just after stage 2 began, and the frame time of each initial
     dynamic point (N,)."""

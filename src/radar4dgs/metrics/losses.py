@@ -153,11 +153,22 @@ def binary_cross_entropy(probability: Tensor, target: Tensor) -> Tensor:
     return F.binary_cross_entropy(probability.clamp(1e-4, 1 - 1e-4), target.to(probability.dtype))
 
 
-def inverse_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor) -> Tensor:
-    """Mean ``|1 / d_rendered - 1 / d_target|`` over ``valid`` pixels with finite positive target
-    depth and some rendered opacity; 0 when there is none. All (H, W)."""
+def _transformed_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor, transform) -> Tensor:
+    """Mean ``|transform(d_rendered) - transform(d_target)|`` over ``valid`` pixels with finite
+    positive target depth and some rendered opacity; 0 when there is none. All (H, W)."""
     valid = valid & torch.isfinite(target) & (target > 0) & (alpha > 0.05)
     if not bool(valid.any()):
         return rendered.sum() * 0.0
-    inv_rendered = 1.0 / rendered[valid].clamp_min(0.1)
-    return (inv_rendered - 1.0 / target[valid]).abs().mean()
+    return (transform(rendered[valid].clamp_min(0.1)) - transform(target[valid])).abs().mean()
+
+
+def inverse_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor) -> Tensor:
+    """Mean ``|1 / d_rendered - 1 / d_target|`` (see :func:`_transformed_depth_l1`). All (H, W)."""
+    return _transformed_depth_l1(rendered, alpha, target, valid, torch.reciprocal)
+
+
+def log_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor) -> Tensor:
+    """Mean ``|log d_rendered - log d_target|`` (see :func:`_transformed_depth_l1`): scale-free, so a
+    far object drawn 20 % too deep costs as much as a near one, where the inverse depth's cost
+    falls with the distance (and its gradient in depth with the distance squared). All (H, W)."""
+    return _transformed_depth_l1(rendered, alpha, target, valid, torch.log)

@@ -125,9 +125,8 @@ class BaselineConfig:
     # PVG and bspline: initial life span beta (normalised time): a Gaussian starts visible over
     # about +-2 beta around the frame that saw it.
     initial_lifespan: float = 0.2
-    # PVG velocity (m per normalised time unit, scaled by the scene extent) and life-peak
-    # learning rates; the life span's is on log(beta). The last two serve every set with life
-    # spans: PVG, bspline and ours' dynamic Gaussians.
+    # PVG velocity (m per normalised time unit, scaled by the scene extent) and life-peak learning
+    # rates; the life span's is on log(beta). The last two serve PVG, bspline and ours' dynamic set.
     velocity_lr: float = 1e-2
     time_lr: float = 1e-3
     lifespan_lr: float = 1e-2
@@ -170,6 +169,9 @@ class LossConfig:
     ssim_weight: float = 0.2
     # lambda_d: inverse-depth L1 against the radar-scaled prepared depth (non-sky pixels).
     depth_weight: float = 0.1
+    # Weight of |log d - log d_prepared| on the dynamic-mask pixels where the image trains them; 0 = off.
+    # Scale-free: lambda_d's pull in depth on a car 20 % too deep is 16x weaker at 20 m than at 5 m.
+    dynamic_depth_weight: float = 0.0
     # lambda_obj: BCE of the rendered dynamic mask against the prepared mask (stage 3 only).
     object_weight: float = 0.05
     # lambda_sky: BCE of the rendered opacity against the sky mask (opacity 0 on sky).
@@ -178,9 +180,8 @@ class LossConfig:
     flow_weight: float = 1.0
     # Weight of L_rad (m) on the field (as the standalone fit's radar_weight).
     radar_weight: float = 0.5
-    # Weight of L_vel (radar objects' full velocity; the standalone fit's FitConfig.velocity_weight),
-    # 0 = off. Off in training by default: like radar_returns_as_points, it supervises the field at
-    # radar returns, and its effect on rendering has not been measured (benchmarks/reconstruct.py).
+    # Weight of L_vel (radar objects' full velocity, as FitConfig.velocity_weight); 0 = off: like
+    # radar_returns_as_points it supervises the field at radar returns; its effect is unmeasured.
     velocity_weight: float = 0.0
     # Flow pairs and radar points drawn per iteration for L_flow and L_rad (and L_vel).
     motion_batch: int = 1024
@@ -188,10 +189,9 @@ class LossConfig:
     radar_gate: float = 2.0
     # Dynamic pixels per frame lifted as radar-supervised points.
     radar_points_per_frame: int = 2000
-    # Also supervise the field at the dynamic radar returns themselves (see the standalone fit's
-    # FitConfig.radar_returns_as_points, on there). Off in training: on synthetic small seed 1 it
-    # took novel-view PSNR* from 22.63 to 20.17 dB (recon PSNR* 24.02 to 20.96); returns flagged
-    # dynamic by mistake move the field where dynamic Gaussians are.
+    # Also supervise the field at the dynamic radar returns (FitConfig.radar_returns_as_points, on
+    # there). Off: on synthetic small seed 1 it took novel-view PSNR* from 22.63 to 20.17 dB; returns
+    # flagged dynamic by mistake move the field where dynamic Gaussians are.
     radar_returns_as_points: bool = False
 
 

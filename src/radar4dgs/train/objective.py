@@ -14,7 +14,14 @@ import torch
 from torch import Tensor
 
 from radar4dgs.metrics.image import ssim_loss_value
-from radar4dgs.metrics.losses import binary_cross_entropy, flow_loss, inverse_depth_l1, radar_loss, velocity_loss
+from radar4dgs.metrics.losses import (
+    binary_cross_entropy,
+    flow_loss,
+    inverse_depth_l1,
+    log_depth_l1,
+    radar_loss,
+    velocity_loss,
+)
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.train.data import FrameTargets, MotionTargets
@@ -31,6 +38,9 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
     losses = {"l1": (rgb - image).abs().mean(), "ssim": 1.0 - ssim_loss_value(rgb, image)}
     depth_valid = ~target.sky & ~target.dynamic if ignore_dynamic else ~target.sky
     losses["depth"] = inverse_depth_l1(render["depth"], render["alpha"], target.depth, depth_valid)
+    if config.losses.dynamic_depth_weight > 0 and not ignore_dynamic:
+        losses["dynamic_depth"] = log_depth_l1(render["depth"], render["alpha"], target.depth,
+                                               target.dynamic & ~target.sky)
     losses["sky"] = binary_cross_entropy(render["alpha"], ~target.sky)
     if stage == 3:
         losses["object"] = binary_cross_entropy(render["dynamic"], target.dynamic)
@@ -84,6 +94,7 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     """The weight of each named loss term (the keys are :data:`radar4dgs.model.run.LOSS_TERMS`)."""
     c = config.losses
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
+            "dynamic_depth": c.dynamic_depth_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
             "velocity": c.velocity_weight, "pose_smooth": config.poses.smooth_weight,
             "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight,
