@@ -2,7 +2,8 @@
 
 ``(1 - l_r) L1 + l_r (1 - SSIM) + l_d L_invdepth + l_obj BCE(dyn, mask) [stage 3] + l_sky BCE(alpha,
 not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module docstring has the stages),
-plus, where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``.
+plus, where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
+and with ``losses.dynamic_depth_weight`` a log-depth L1 on the dynamic-mask pixels where the image trains them.
 """
 
 from __future__ import annotations
