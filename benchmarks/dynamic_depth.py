@@ -22,6 +22,8 @@ def run_row(run: Path) -> dict:
     metrics = json.loads((run / "metrics.json").read_text())
     return {"run": str(run.resolve()), "scene": json.loads((run / "run.json").read_text())["scene"],
             "train_seed": config["seed"], "dynamic_positions": config.get("dynamic_positions", "canonical"),
+            "dynamic_stop": config["densify"]["dynamic_stop"],
+            "dynamic_depth_weight": config["losses"].get("dynamic_depth_weight", 0.0),
             "nvs_psnr_dyn": metrics["nvs"]["psnr_dyn"], "recon_psnr_dyn": metrics["recon"]["psnr_dyn"],
             "depth": run_dynamic_depth(run), "prepared_depth": run_prepared_depth(run)}
 
