@@ -42,6 +42,7 @@ def test_the_summary_counts_the_share_behind_the_surface():
     assert summary == {"median": 0.05, "p90_abs": summary["p90_abs"], "behind": 0.4, "gaussians": 5}
     np.testing.assert_allclose(summary["p90_abs"], np.percentile([0.05, 0.0, 0.05, 0.2, 0.3], 90))
     assert summarize(np.zeros(0))["gaussians"] == 0
+    assert summarize(np.array([0.2, 0.0]), counted="pixels")["pixels"] == 2
 
 
 def test_pixel_depth_errors_count_only_moving_pixels_with_both_depths():

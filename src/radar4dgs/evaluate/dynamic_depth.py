@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from radar4dgs.io.scene import normalized_times, read_scene
+from radar4dgs.io.scene import Scene, normalized_times, read_scene
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.motion.flow import load_depth
 from radar4dgs.motion.truth import project
@@ -41,16 +41,14 @@ def depth_errors_in_frame(points: np.ndarray, world_to_camera: np.ndarray, K: np
     height, width = depth.shape
     inside = (pixel[:, 0] >= 0) & (pixel[:, 1] >= 0) & (pixel[:, 0] < width) & (pixel[:, 1] < height)
     pixel, z = pixel[inside], z[front][inside]
-    truth = depth[pixel[:, 1], pixel[:, 0]]
-    on = moving[pixel[:, 1], pixel[:, 0]].astype(bool) & np.isfinite(truth) & (truth > 0)
-    return (z[on] - truth[on]) / truth[on]
+    return pixel_depth_errors(z, depth[pixel[:, 1], pixel[:, 0]], moving[pixel[:, 1], pixel[:, 0]])
 
 
 def pixel_depth_errors(depth: np.ndarray, truth: np.ndarray, moving: np.ndarray) -> np.ndarray:
     """Relative errors ``(depth - truth) / truth`` on the moving pixels where both are finite and > 0.
 
     Args:
-        depth, truth: (H, W) z-depth (m). moving: (H, W) bool.
+        depth, truth: z-depth (m), (H, W) images or (N,) samples. moving: bool, the same shape.
     Returns:
         (M,) float64: positive where ``depth`` is too far.
     """
@@ -60,13 +58,24 @@ def pixel_depth_errors(depth: np.ndarray, truth: np.ndarray, moving: np.ndarray)
     return (depth[on] - truth[on]) / truth[on]
 
 
-def summarize(errors: np.ndarray) -> dict:
+def summarize(errors: np.ndarray, counted: str = "gaussians") -> dict:
     """``median`` relative error (signed), ``p90_abs`` (90th percentile of its size), ``behind``
-    (share more than 10 % behind the surface) and ``gaussians`` (how many were counted)."""
+    (share more than 10 % behind the surface) and, under ``counted``, how many were counted."""
     if len(errors) == 0:
-        return {"median": None, "p90_abs": None, "behind": None, "gaussians": 0}
+        return {"median": None, "p90_abs": None, "behind": None, counted: 0}
     return {"median": float(np.median(errors)), "p90_abs": float(np.percentile(np.abs(errors), 90)),
-            "behind": float(np.mean(errors > 0.1)), "gaussians": int(len(errors))}
+            "behind": float(np.mean(errors > 0.1)), counted: int(len(errors))}
+
+
+def _run_scene_with_depth_truth(root: Path) -> tuple[dict, Scene]:
+    """A run's ``run.json`` paths and its scene; ValueError where the scene lacks ``gt/depth`` or
+    ``gt/dynamic_mask``."""
+    paths = json.loads((root / "run.json").read_text())
+    scene = read_scene(paths["scene"])
+    for name in ("gt/depth", "gt/dynamic_mask"):
+        if not scene.has(name):
+            raise ValueError(f"{scene.root}: no {name}, so no true depth of the movers to compare with")
+    return paths, scene
 
 
 @torch.no_grad()
@@ -75,10 +84,7 @@ def run_dynamic_depth(run_dir: str | Path) -> dict:
     ``gt/dynamic_mask`` (each Gaussian at its nearest training frame). Raises ValueError for a run
     without dynamic Gaussians or a scene without that ground truth."""
     root = Path(run_dir)
-    scene = read_scene(json.loads((root / "run.json").read_text())["scene"])
-    for name in ("gt/depth", "gt/dynamic_mask"):
-        if not scene.has(name):
-            raise ValueError(f"{scene.root}: no {name}, so no true depth of the movers to compare with")
+    _, scene = _run_scene_with_depth_truth(root)
     model = load_model(root / "model.pt")
     if model.dynamic is None or len(model.dynamic) == 0 or not model.dynamic.has("tau"):
         raise ValueError(f"{root}: no dynamic Gaussians with life peaks (a baseline or static run?)")
@@ -97,14 +103,10 @@ def run_dynamic_depth(run_dir: str | Path) -> dict:
 
 def run_prepared_depth(run_dir: str | Path) -> dict:
     """:func:`summarize` of the run's prepared depth on the true moving pixels of its training frames
-    (its count under ``pixels``)."""
-    root = Path(run_dir)
-    paths = json.loads((root / "run.json").read_text())
-    scene = read_scene(paths["scene"])
+    (its count under ``pixels``). Raises ValueError for a scene without that ground truth."""
+    paths, scene = _run_scene_with_depth_truth(Path(run_dir))
     errors = [pixel_depth_errors(load_depth(scene, index, "prepared", paths["prepared"]),
                                  scene.load_optional("gt/depth", index),
                                  scene.load_optional("gt/dynamic_mask", index) > 0)
               for index in scene.train_indices]
-    summary = summarize(np.concatenate(errors))
-    summary["pixels"] = summary.pop("gaussians")
-    return summary
+    return summarize(np.concatenate(errors), counted="pixels")

@@ -29,6 +29,7 @@ share) against a mask.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Literal
 
 import torch
@@ -153,7 +154,8 @@ def binary_cross_entropy(probability: Tensor, target: Tensor) -> Tensor:
     return F.binary_cross_entropy(probability.clamp(1e-4, 1 - 1e-4), target.to(probability.dtype))
 
 
-def _transformed_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor, transform) -> Tensor:
+def _transformed_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor,
+                          transform: Callable[[Tensor], Tensor]) -> Tensor:
     """Mean ``|transform(d_rendered) - transform(d_target)|`` over ``valid`` pixels with finite
     positive target depth and some rendered opacity; 0 when there is none. All (H, W)."""
     valid = valid & torch.isfinite(target) & (target > 0) & (alpha > 0.05)
