@@ -130,8 +130,7 @@ class BaselineConfig:
     velocity_lr: float = 1e-2
     time_lr: float = 1e-3
     lifespan_lr: float = 1e-2
-    # bspline: control points per trajectory over [0, 1] and their learning rate (m, scaled by
-    # the scene extent).
+    # bspline: control points per trajectory over [0, 1] and their rate (m, scaled by the extent).
     control_points: int = 8
     control_lr: float = 1e-3
     # deformable: MLP width, hidden layers, Fourier frequencies of x (normalised) and t, and
@@ -286,6 +285,9 @@ class OptimConfig:
     # exponentially to means_lr_final over the run.
     means_lr: float = 1.6e-4
     means_lr_final: float = 1.6e-6
+    # Ours: the dynamic means' decay runs from their birth at stage 2 to the end instead of over the
+    # whole run, so they start at means_lr, not at its value stage2_start into the run.
+    dynamic_means_from_birth: bool = False
     # Learning rates of the other Gaussian parameters (colour and opacity are logits).
     quats_lr: float = 1e-3
     scales_lr: float = 5e-3
@@ -303,13 +305,11 @@ class OptimConfig:
     # small pre-fits 1000 (bench grid: PSNR* +0.52 dB on the rush 5 Hz report seeds, calm seeds 1 / 2
     # +0.58 / -0.19 dB); tiny (a smoke test) and paper (whose stage 1 is long) keep it off.
     field_prefit_iterations: int = 0
-    # Sky environment map (colour logits).
-    sky_lr: float = 1e-2
+    sky_lr: float = 1e-2  # sky environment map (colour logits)
     # Gaussian dropout: each iteration this fraction of the Gaussians gets opacity 0 and the rest
-    # are scaled by 1 / (1 - p) (clamped to 1), so the expected opacity is unchanged.
+    # are scaled by 1 / (1 - p) (clamped to 1), so the expected opacity is unchanged; used until
+    # dropout_until of the run, so the model settles on the opacities it is evaluated with.
     dropout: float = 0.1
-    # Iterations over which dropout is used, as a fraction of the run (off for the last part so the
-    # model settles on the opacities it is evaluated with).
     dropout_until: float = 0.9
 
 

@@ -70,13 +70,27 @@ def decayed_network_lr(config: TrainConfig, start: float, progress: float) -> fl
     return start * config.optim.field_lr_final_ratio ** progress
 
 
+def dynamic_progress(config: TrainConfig, step: int) -> float:
+    """Where iteration ``step`` lies in the dynamic means' decay: as in the run, or with
+    ``optim.dynamic_means_from_birth`` (ours only) from stage 2's first iteration (0) to the last (1).
+
+    Why: ours creates its dynamic Gaussians at stage 2, which ``small`` starts a quarter into the
+    run, so on the run's schedule they are born at a third of ``means_lr`` and have its last,
+    smallest rates for most of their 1 350 iterations, each seen in only a few frames."""
+    last = max(config.optim.iterations - 1, 1)
+    if not (config.optim.dynamic_means_from_birth and config.method == "ours"):
+        return step / last
+    birth = round(config.optim.stage2_start * config.optim.iterations)
+    return (step - birth) / max(last - birth, 1)
+
+
 def set_learning_rates(optimizers: dict[str, torch.optim.Optimizer], config: TrainConfig, extent: float,
                        step: int) -> None:
     """Set the rates of iteration ``step`` in ``optimizers`` (named as :func:`make_optimizers`'s)."""
     progress = step / max(config.optim.iterations - 1, 1)
-    lrs = gaussian_lrs(config, extent, progress)
-    for name in ("static", "dynamic"):
+    for name, at in (("static", progress), ("dynamic", dynamic_progress(config, step))):
         if name in optimizers:
+            lrs = gaussian_lrs(config, extent, at)
             for group in optimizers[name].param_groups:
                 group["lr"] = lrs[group["name"].rsplit(".", 1)[-1]]
     for name, start in (("field", config.optim.field_lr), ("offsets", config.baselines.offset_lr)):
