@@ -1,7 +1,9 @@
 """Where trained runs put their dynamic Gaussians in depth, against the synthetic scene's truth
 (:mod:`radar4dgs.evaluate.dynamic_depth`), beside each run's novel-view PSNR* from its metrics.json and
 the error of its prepared depth on the same moving pixels (the input the depth term pulls toward) and
-of its rendered depth there, frame by frame (what the images show; the Gaussian count includes hidden ones).
+of its rendered depth there, frame by frame (what the images show; the Gaussian count includes hidden ones),
+and the trained field's scene-flow error on the true moving pixels (`field_epe`, m; as `radar4dgs fit-motion`
+scores a standalone fit).
 
     python benchmarks/dynamic_depth.py RUN [RUN ...] [--out JSON]
 
@@ -16,6 +18,16 @@ from pathlib import Path
 
 from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth, run_prepared_depth, run_rendered_depth
 from radar4dgs.io.atomic import atomic_write_json
+from radar4dgs.io.scene import normalized_times
+from radar4dgs.model.run import load_run
+from radar4dgs.train.fit_motion import evaluate_sceneflow
+
+
+def field_epe(run_dir: Path) -> dict:
+    """The run's trained field, scored as a standalone fit is: mean error (m) per pixel and by image motion."""
+    run = load_run(run_dir, device="cpu")
+    result = evaluate_sceneflow(run.model.field, run.scene, normalized_times(run.scene))
+    return {key: result[key] for key in ("epe", "epe_by_image_motion", "points")}
 
 
 def run_row(run: Path) -> dict:
@@ -28,7 +40,7 @@ def run_row(run: Path) -> dict:
             "dynamic_means_from_birth": config["optim"].get("dynamic_means_from_birth", False),
             "nvs_psnr_dyn": metrics["nvs"]["psnr_dyn"], "recon_psnr_dyn": metrics["recon"]["psnr_dyn"],
             "depth": run_dynamic_depth(run), "prepared_depth": run_prepared_depth(run),
-            "rendered_depth": run_rendered_depth(run)}
+            "rendered_depth": run_rendered_depth(run), "field_epe": field_epe(run)}
 
 
 def main() -> None:
@@ -44,7 +56,7 @@ def main() -> None:
         print(f"{run}  {row['dynamic_positions']:9s} seed {row['train_seed']}  depth error median {d['median']:+.3f}  "
               f"|p90| {d['p90_abs']:.3f}  >10 % behind {d['behind']:.2f}  (prepared depth "
               f"{row['prepared_depth']['median']:+.3f}, rendered {row['rendered_depth']['median']:+.3f})  "
-              f"PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
+              f"field {row['field_epe']['epe']:.3f} m  PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
         atomic_write_json(args.out, {"command": "python benchmarks/dynamic_depth.py RUN [RUN ...]", "rows": rows})
 
 
