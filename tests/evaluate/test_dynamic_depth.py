@@ -66,7 +66,8 @@ def test_rendered_depth_scores_every_training_frame_against_the_truth(tiny_train
     scene = read_scene(tiny_trained_run / "scene")
     monkeypatch.setattr(dynamic_depth, "frame_view", lambda scene, index, scale, times: index)
     monkeypatch.setattr(dynamic_depth, "render_view", lambda run, index: {
-        "depth": torch.as_tensor(1.05 * scene.load_optional("gt/depth", index).astype(np.float64))})
+        "depth": torch.as_tensor(1.05 * scene.load_optional("gt/depth", index).astype(np.float64)),
+        "dynamic": torch.full(scene.load_optional("gt/depth", index).shape, 0.75)})
     result = dynamic_depth.run_rendered_depth(tiny_trained_run / "run")
     moving = [int(((scene.load_optional("gt/dynamic_mask", i) > 0) & (scene.load_optional("gt/depth", i) > 0)).sum())
               for i in scene.train_indices]
@@ -76,6 +77,7 @@ def test_rendered_depth_scores_every_training_frame_against_the_truth(tiny_train
     assert result["median"] == pytest.approx(0.05)
     assert result["behind"] == 0.0 and result["p90_abs"] == pytest.approx(0.05)
     assert all(row["median"] == pytest.approx(0.05) for row in result["by_frame"])
+    assert result["dynamic_share"] == pytest.approx(0.75)
 
 
 def test_rendered_depth_of_a_real_run_is_finite(tiny_trained_run):
@@ -83,3 +85,4 @@ def test_rendered_depth_of_a_real_run_is_finite(tiny_trained_run):
 
     result = run_rendered_depth(tiny_trained_run / "run")
     assert result["pixels"] > 0 and np.isfinite(result["median"]) and result["p90_abs"] >= abs(result["median"]) - 1e-12
+    assert 0.0 <= result["dynamic_share"] <= 1.0

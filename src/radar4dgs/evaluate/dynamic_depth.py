@@ -122,18 +122,26 @@ def run_prepared_depth(run_dir: str | Path) -> dict:
 @torch.no_grad()
 def run_rendered_depth(run_dir: str | Path, device: str | None = None) -> dict:
     """:func:`summarize` of the run's rendered depth on the true moving pixels of its training frames
-    (under ``pixels``), plus ``by_frame``: each frame's ``frame`` index, ``median`` and ``pixels``.
+    (under ``pixels``), ``dynamic_share`` (the mean share of those pixels' opacity the dynamic set
+    draws: below 1, static Gaussians behind a car show through and pull its depth back), and
+    ``by_frame``: each frame's ``frame`` index, ``median``, ``dynamic_share`` and ``pixels``.
     Raises ValueError for a scene without that ground truth."""
     root = Path(run_dir)
     _run_scene_with_depth_truth(root)
     run = load_run(root, device=device or "cpu")
     times = normalized_times(run.scene)
-    errors, by_frame = [], []
+    errors, shares, by_frame = [], [], []
     for index in run.scene.train_indices:
-        depth = render_view(run, frame_view(run.scene, index, 1.0, times))["depth"].double().cpu().numpy()
-        frame_errors = pixel_depth_errors(depth, run.scene.load_optional("gt/depth", index),
-                                          run.scene.load_optional("gt/dynamic_mask", index) > 0)
+        out = render_view(run, frame_view(run.scene, index, 1.0, times))
+        truth = run.scene.load_optional("gt/depth", index)
+        moving = run.scene.load_optional("gt/dynamic_mask", index) > 0
+        frame_errors = pixel_depth_errors(out["depth"].double().cpu().numpy(), truth, moving)
+        share = out["dynamic"].double().cpu().numpy()[moving]
         errors.append(frame_errors)
+        shares.append(share)
         by_frame.append({"frame": int(index), "median": float(np.median(frame_errors)) if len(frame_errors) else None,
+                         "dynamic_share": float(share.mean()) if len(share) else None,
                          "pixels": int(len(frame_errors))})
-    return {**summarize(np.concatenate(errors), counted="pixels"), "by_frame": by_frame}
+    share = np.concatenate(shares)
+    return {**summarize(np.concatenate(errors), counted="pixels"),
+            "dynamic_share": float(share.mean()) if len(share) else None, "by_frame": by_frame}
