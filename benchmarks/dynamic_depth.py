@@ -39,6 +39,7 @@ def run_row(run: Path) -> dict:
             "dynamic_depth_weight": config["losses"].get("dynamic_depth_weight", 0.0),
             "dynamic_means_from_birth": config["optim"].get("dynamic_means_from_birth", False),
             "nvs_psnr_dyn": metrics["nvs"]["psnr_dyn"], "recon_psnr_dyn": metrics["recon"]["psnr_dyn"],
+            "recon_psnr_dyn_by_frame": {r["index"]: r["psnr_dyn"] for r in metrics["per_frame"]["recon"]},
             "depth": run_dynamic_depth(run), "prepared_depth": run_prepared_depth(run),
             "rendered_depth": run_rendered_depth(run), "field_epe": field_epe(run)}
 
