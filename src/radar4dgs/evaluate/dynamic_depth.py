@@ -122,8 +122,8 @@ def run_prepared_depth(run_dir: str | Path) -> dict:
 @torch.no_grad()
 def run_rendered_depth(run_dir: str | Path, device: str | None = None) -> dict:
     """:func:`summarize` of the run's rendered depth on the true moving pixels of its training frames
-    (under ``pixels``), ``dynamic_share`` (the mean share of those pixels' opacity the dynamic set
-    draws: below 1, static Gaussians behind a car show through and pull its depth back), and
+    (under ``pixels``), ``dynamic_share`` (the mean share of those pixels' blend weight the dynamic
+    set draws: below 1, static Gaussians behind a car show through and pull its depth back), and
     ``by_frame``: each frame's ``frame`` index, ``median``, ``dynamic_share`` and ``pixels``.
     Raises ValueError for a scene without that ground truth."""
     root = Path(run_dir)
