@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from radar4dgs.config import preset
@@ -34,6 +34,8 @@ def _inside_box(points, center, rot, half, slack=0.0):
 @given(center=st.tuples(finite, finite, finite), half=st.tuples(*[st.floats(0.1, 3.0)] * 3),
        angles=st.tuples(*[st.floats(-np.pi, np.pi)] * 3), origin=st.tuples(finite, finite, finite),
        direction=st.tuples(*[st.floats(-1.0, 1.0)] * 3))
+@example(center=(0.0, 0.0, 1.0), half=(1.0, 1.0, 1.0), angles=(0.0, 0.0, 0.0), origin=(0.0, 2.0, 0.0),
+         direction=(0.0, -1.0, 0.0))  # along the bottom face's plane, z = 0
 def test_ray_box_matches_brute_force_marching(center, half, angles, origin, direction):
     center, half, origin, d = map(np.asarray, (center, half, origin, direction))
     if np.linalg.norm(d) < 1e-3:
@@ -46,7 +48,8 @@ def test_ray_box_matches_brute_force_marching(center, half, angles, origin, dire
     steps = np.linspace(0.0, 30.0, 30001)
     inside = _inside_box(origin + steps[:, None] * d, center, rot, half)
     if np.isinf(t[0]):
-        assert not inside.any()
+        # A ray in the plane of a face only touches the surface: a hit or a miss is as good.
+        assert not _inside_box(origin + steps[:, None] * d, center, rot, half, -1e-9).any()
     else:
         if inside.any():  # a grazing hit may fall between samples
             assert abs(t[0] - steps[np.argmax(inside)]) <= 2e-3
