@@ -488,13 +488,13 @@ class TrainConfig:
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must lie in (0, 1], got {getattr(self, name)}")
 
+    def stage_start(self, stage: int) -> int:
+        """The first iteration of "ours"' stage 2 or 3 (from ``optim.stage2_start`` / ``stage3_start``)."""
+        return round({2: self.optim.stage2_start, 3: self.optim.stage3_start}[stage] * self.optim.iterations)
+
     def stage_at(self, step: int) -> int:
         """The training stage (1, 2 or 3) of iteration ``step`` (0-based); only "ours" has stages:
         the other methods stay in stage 1 with every part trained from the start."""
         if self.method != "ours":
             return 1
-        if step >= round(self.optim.stage3_start * self.optim.iterations):
-            return 3
-        if step >= round(self.optim.stage2_start * self.optim.iterations):
-            return 2
-        return 1
+        return 3 if step >= self.stage_start(3) else 2 if step >= self.stage_start(2) else 1

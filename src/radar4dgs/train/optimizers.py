@@ -80,7 +80,7 @@ def dynamic_progress(config: TrainConfig, step: int) -> float:
     last = max(config.optim.iterations - 1, 1)
     if not (config.optim.dynamic_means_from_birth and config.method == "ours"):
         return step / last
-    birth = round(config.optim.stage2_start * config.optim.iterations)
+    birth = config.stage_start(2)
     return (step - birth) / max(last - birth, 1)
 
 
