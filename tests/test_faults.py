@@ -109,7 +109,7 @@ def test_prepare_killed_anywhere_then_rerun_gives_the_undisturbed_outputs(refere
             p.name.startswith(f".{name}.") for p in (prepared.iterdir() if prepared.is_dir() else ()))
 
     killed, left = [], []
-    for stage in ("radar", "depth", "masks", "flow"):
+    for stage in ("radar", "depth", "masks", "object_depth", "flow"):
         killed.append(kill_when(argv, in_stage(stage)))
         left += temporaries(scene)
     assert sum(killed) >= 3, killed

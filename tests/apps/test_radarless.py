@@ -48,7 +48,7 @@ def test_point_depth_is_the_nearest_unoccluded_point_per_pixel():
 def test_prepare_train_static_and_eval_without_radar(radarless, tmp_path, capsys):
     assert main(["prepare", str(radarless), "--preset", "tiny", "--quiet"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert [line.split(":")[0] for line in lines] == ["radar", "depth", "masks", "flow"]
+    assert [line.split(":")[0] for line in lines] == ["radar", "depth", "masks", "object_depth", "flow"]
     assert all("(the scene has no radar: " in line for line in lines)
     assert "the sparse depth of the scene's point cloud" in lines[1] and "empty dynamic masks" in lines[2]
     scene = read_scene(radarless)

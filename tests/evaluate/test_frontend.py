@@ -184,7 +184,7 @@ def test_frontend_eval_on_the_converted_aimotive_clip(tmp_path, capsys):
     assert 0.0 <= radar["dynamic_precision"] <= 1.0 and 0.0 <= radar["dynamic_recall"] <= 1.0
     assert radar["static_residual_median"] < 0.5
     assert any("integrated from the radar itself" in note for note in radar["notes"])
-    assert set(report["skipped"]) == {"depth", "masks", "flow"}
+    assert set(report["skipped"]) == {"depth", "masks", "object_depth", "flow"}
     assert all(reason.startswith("no ground truth: the scene has") for reason in report["skipped"].values())
     assert "radar.dynamic_precision" in printed and "depth skipped" in printed
 

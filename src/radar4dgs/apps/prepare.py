@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from radar4dgs.apps.options import default_is
 from radar4dgs.config import PresetName, save_config, to_dict
-from radar4dgs.depth.config import DepthConfig
+from radar4dgs.depth.config import DepthConfig, ObjectDepthConfig
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json, remove_dead_temporaries
 from radar4dgs.io.locks import folder_lock
 from radar4dgs.io.scene import Scene, read_scene
@@ -43,12 +43,16 @@ class PrepareConfig:
     depth: DepthConfig = field(default_factory=DepthConfig)
     # Stage "masks": radar-camera dynamic segmentation (the shipped network by default).
     masks: SegInferConfig = field(default_factory=SegInferConfig)
+    # Stage "object_depth": each moving object's depth rescaled by its own radar returns.
+    object_depth: ObjectDepthConfig = field(default_factory=ObjectDepthConfig)
     # Stage "flow": optical flow between training frames lifted to 3D scene flow on dynamic pixels.
     flow: FlowConfig = field(default_factory=FlowConfig)
 
     PRESETS: ClassVar[Mapping[str, Mapping[str, Any]]] = {
         name: {"radar": dict(RadarConfig.PRESETS.get(name, {})), "depth": dict(DepthConfig.PRESETS.get(name, {})),
-               "masks": dict(SegInferConfig.PRESETS.get(name, {})), "flow": dict(FlowConfig.PRESETS.get(name, {}))}
+               "masks": dict(SegInferConfig.PRESETS.get(name, {})),
+               "object_depth": dict(ObjectDepthConfig.PRESETS.get(name, {})),
+               "flow": dict(FlowConfig.PRESETS.get(name, {}))}
         for name in ("tiny", "small", "paper")}
 
 
@@ -91,9 +95,17 @@ def _run_masks(scene: Scene, out_dir: Path, config: SegInferConfig, progress: Ca
             "completion": summary["completion"]}
 
 
+def _run_object_depth(scene: Scene, out_dir: Path, config: ObjectDepthConfig, progress: Callable) -> dict:
+    from radar4dgs.depth.objects import write_object_depth
+
+    summary = write_object_depth(scene, out_dir, config, progress)
+    return {"objects": summary["objects"], "rescaled": summary["rescaled"],
+            "median_abs_correction": round(summary["median_abs_correction"], 4)}
+
+
 def _no_radar(scene: Scene, out_dir: Path, config: Any, progress: Callable) -> dict:
-    """Radar (ego-motion) and flow stages of a radar-less scene: nothing to compute (flow is lifted
-    on dynamic pixels only, and a radar-less scene's masks are empty); the folder says why."""
+    """Radar (ego-motion), object-depth and flow stages of a radar-less scene: nothing to compute (they
+    work on dynamic pixels or returns only, and a radar-less scene's masks are empty); the folder says why."""
     atomic_write_json(out_dir / "summary.json", {"skipped": f"{scene.root} has no radar", "pairs": 0,
                                                  "per_pair": []})
     return {"no_radar": "nothing to do"}
@@ -115,16 +127,17 @@ def _masks_no_radar(scene: Scene, out_dir: Path, config: SegInferConfig, progres
 # A radar-less scene (docs/data/scene-format.md) runs these instead; its depth stage is the sparse
 # depth of its point cloud (radar4dgs.depth.points, chosen inside the depth stage).
 RADARLESS_RUNNERS: dict[str, Callable[..., dict]] = {"radar": _no_radar, "masks": _masks_no_radar,
-                                                     "flow": _no_radar}
+                                                     "object_depth": _no_radar, "flow": _no_radar}
 
 STAGES: tuple[Stage, ...] = (
     Stage("radar", _run_radar),
     Stage("depth", _run_depth),
     Stage("masks", _run_masks),
+    Stage("object_depth", _run_object_depth),
     Stage("flow", run_flow_stage),
 )
 # The stage names, for `--only` (tests/apps/test_prepare.py keeps them equal to STAGES').
-StageName = Literal["radar", "depth", "masks", "flow"]
+StageName = Literal["radar", "depth", "masks", "object_depth", "flow"]
 
 
 def scene_fingerprint(scene: Scene) -> str:

@@ -180,3 +180,27 @@ class DepthConfig:
         if self.scale_method != "auto":
             return self.scale_method
         return "paper" if kind == "depth" else "affine"
+
+
+@dataclass
+class ObjectDepthConfig:
+    """How each moving object's prepared depth is rescaled by its radar returns."""
+
+    # Off: the stage writes only its summary and every later stage reads the depth stage's maps.
+    enabled: bool = True
+    # A mask component is rescaled only with at least this many dynamic returns on it (a median of
+    # fewer is one stray return away from a wrong scale).
+    min_returns: int = 3
+    # And only when the median ratio lies within 1 +- this: a larger correction says the returns
+    # belong to something else (a merged component, a ghost), not that the prior is that far off.
+    max_correction: float = 0.25
+    # Components smaller than this many pixels are left alone (speckle of the mask).
+    min_pixels: int = 20
+
+    PRESETS: ClassVar[dict[str, dict]] = {"tiny": {}, "small": {}, "paper": {}}
+
+    def __post_init__(self) -> None:
+        if self.min_returns < 1 or self.min_pixels < 1:
+            raise ValueError(f"min_returns and min_pixels must be >= 1, got {self.min_returns}, {self.min_pixels}")
+        if not 0.0 < self.max_correction < 1.0:
+            raise ValueError(f"max_correction must lie in (0, 1), got {self.max_correction}")

@@ -1,6 +1,6 @@
 """The ``frontend-eval`` command: metrics of the prepared front-end outputs against a scene's gt.
 
-The JSON report has one section per front-end stage (radar, depth, masks, flow; registered in
+The JSON report has one section per front-end stage (radar, depth, masks, object_depth, flow; registered in
 ``SECTIONS``) and scores whatever ground truth the scene has: a metric is ``null`` when the scene
 lacks what it needs, with a ``notes`` entry saying why, and a section that could score nothing (a
 stage not prepared, or no ground truth for it: real datasets have no ``gt/depth``) is left out and
@@ -34,6 +34,10 @@ Radar metrics:
         first for objects that do not turn. ``object_unmatched``: objects with no
         moving ground-truth object within the gate. ``object_observable_fraction``: of the matched
         objects, those whose returns spread enough in azimuth for a full per-scan fit.
+
+Object-depth metrics (:func:`radar4dgs.depth.objects.object_depth_metrics`): ``mover_absrel_before`` /
+    ``_after`` and ``mover_bias_before`` / ``_after``, the prepared depth on the truly moving pixels
+    before and after each moving object is rescaled by its radar returns.
 """
 
 from __future__ import annotations
@@ -229,6 +233,12 @@ def evaluate_depth(scene: Scene, prepared_dir: Path) -> dict:
     return {**result, "notes": notes} if notes else result
 
 
+def evaluate_object_depth(scene: Scene, prepared_dir: Path) -> dict:
+    from radar4dgs.depth.objects import object_depth_metrics
+
+    return object_depth_metrics(scene, prepared_dir)
+
+
 def evaluate_masks(scene: Scene, prepared_dir: Path) -> dict:
     from radar4dgs.segment.metrics import segmentation_frontend_metrics
 
@@ -243,12 +253,14 @@ def evaluate_flow(scene: Scene, prepared_dir: Path) -> dict:
 
 # Section name (= prepared stage folder) -> function(scene, prepared_dir) -> dict.
 SECTIONS: dict[str, Callable[[Scene, Path], dict]] = {"radar": evaluate_radar, "depth": evaluate_depth,
-                                                     "masks": evaluate_masks, "flow": evaluate_flow}
+                                                     "masks": evaluate_masks, "object_depth": evaluate_object_depth,
+                                                     "flow": evaluate_flow}
 # Section -> the ground-truth folders it cannot score without: every one of them ("all"), or at
 # least one ("any"). The radar section always scores something (the static residual needs none).
 GROUND_TRUTH: dict[str, tuple[str, tuple[str, ...]]] = {
     "depth": ("any", ("gt/depth", "gt/sky_mask")),
     "masks": ("all", ("gt/dynamic_mask",)),
+    "object_depth": ("all", ("gt/depth", "gt/dynamic_mask")),
     "flow": ("all", ("gt/depth", "gt/flow", "gt/dynamic_mask")),
 }
 

@@ -19,6 +19,18 @@ if TYPE_CHECKING:
 # alone (segment.config.CompletionConfig.for_flow): the segmentation stage writes it, the flow
 # stage reads it in place of the masks when it exists. Here because neither stage imports the other.
 FLOW_MASKS = "flow"
+# <prepared>/<OBJECT_DEPTH>/<frame>.npy: the prepared depth with the movers rescaled by their radar
+# returns (radar4dgs.depth.objects), written only for frames where some mover was rescaled. Every
+# reader of the prepared depth after that stage goes through prepared_depth_path.
+OBJECT_DEPTH = "object_depth"
+
+
+def prepared_depth_path(prepared: str | Path, frame: str) -> Path:
+    """The metric depth of frame ``frame`` that the stages after the object-depth stage use:
+    ``<prepared>/object_depth/<frame>.npy`` where that stage rescaled a mover in it, else
+    ``<prepared>/depth/<frame>.npy`` (it may not exist: the caller names it when missing)."""
+    rescaled = Path(prepared) / OBJECT_DEPTH / f"{frame}.npy"
+    return rescaled if rescaled.is_file() else Path(prepared) / "depth" / f"{frame}.npy"
 
 
 def read_mask_png(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:

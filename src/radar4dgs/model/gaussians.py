@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor, nn
 
 from radar4dgs.io.scene import normalized_times, read_mask_png
+from radar4dgs.io.scene_files import prepared_depth_path
 from radar4dgs.model.config import GaussianInitConfig
 from radar4dgs.motion.lift import backproject
 
@@ -82,7 +83,7 @@ def backproject_frame(scene, prepared_dir: Path | str, index: int, config: Gauss
         dynamic = read_mask_png(require_prepared(prepared / "masks" / f"{name}.png", "dynamic mask"), (H, W))
     if config.source == "lidar":
         return lidar_frame(scene, index, config, dynamic, rng)
-    depth_path = require_prepared(prepared / "depth" / f"{name}.npy", "depth")
+    depth_path = require_prepared(prepared_depth_path(prepared, name), "depth")
     depth = np.load(depth_path).astype(np.float64)
     if depth.shape != (H, W):
         raise ValueError(f"{depth_path}: depth has shape {depth.shape}, expected {(H, W)}")

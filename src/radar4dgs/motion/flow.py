@@ -40,7 +40,7 @@ import numpy as np
 from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_directory, atomic_save_npz, atomic_write_json
 from radar4dgs.io.scene import read_mask_png
-from radar4dgs.io.scene_files import FLOW_MASKS
+from radar4dgs.io.scene_files import FLOW_MASKS, prepared_depth_path
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
 from radar4dgs.motion.object_hints import ObjectHint, frame_hints
@@ -65,8 +65,9 @@ def load_depth(scene, index: int, source: str, prepared_dir: str | Path | None,
         return scene.load_optional("gt/depth", index).astype(np.float64)
     if source != "prepared":
         raise ValueError(f"unknown depth source {source!r}; choose 'prepared' or 'oracle'")
-    folder = Path(depth_dir) if depth_dir is not None else Path(prepared_dir) / "depth"
-    path = folder / f"{scene.frames[index].name}.npy"
+    name = scene.frames[index].name
+    path = Path(depth_dir) / f"{name}.npy" if depth_dir is not None else prepared_depth_path(prepared_dir, name)
+    folder = path.parent
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no prepared depth in {folder} (run the depth front end, "
                                 f"`radar4dgs prepare`, first, or set depth_source='oracle' to use the "

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from radar4dgs.io.scene import SceneError, normalized_times, read_mask_png
+from radar4dgs.io.scene_files import prepared_depth_path
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import require_prepared
 from radar4dgs.model.sky import camera_ray_directions
@@ -159,9 +160,10 @@ def load_frame_targets(scene, prepared: Path, index: int, scale: float, times: n
     view = frame_view(scene, index, scale, times)
     size = (view.width, view.height)
     image = resize_image(scene.load_image(index).astype(np.float32) / 255.0, size)
-    depth = np.load(require_prepared(prepared / "depth" / f"{name}.npy", "depth")).astype(np.float32)
+    depth_path = require_prepared(prepared_depth_path(prepared, name), "depth")
+    depth = np.load(depth_path).astype(np.float32)
     if depth.shape != (H, W):
-        raise ValueError(f"{prepared / 'depth' / (name + '.npy')}: shape {depth.shape}, expected {(H, W)}")
+        raise ValueError(f"{depth_path}: shape {depth.shape}, expected {(H, W)}")
     sky = read_mask_png(require_prepared(prepared / "depth" / "sky" / f"{name}.png", "sky mask"), (H, W))
     depth, sky, dynamic = (resize_nearest(a, size) for a in (depth, sky, dynamic))
     kw = {"device": device}
