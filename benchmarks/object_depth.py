@@ -9,6 +9,7 @@ the image-motion statistics of the scene's dynamic pixels.
 
     python benchmarks/object_depth.py --traffic rush --fps 5 --seeds 214 215 --work /tmp/od
     python benchmarks/object_depth.py --traffic realistic --seeds 101 102 103 --work /tmp/od
+    python benchmarks/object_depth.py --traffic rush --fps 5 --seeds 217 --work W --figure docs/images/object_depth.png
 
 Rows of (traffic, fps, seed) already in the results file are replaced, others kept.
 """
@@ -52,6 +53,37 @@ def near_mover_errors(scene, prepared: Path) -> dict:
             "near_bias_after": float(np.median(a))}
 
 
+def error_figure(scene, prepared: Path, path: Path) -> None:
+    """The frame with the most near moving pixels: its image, and the signed depth error on the true
+    moving pixels before and after the stage (the picture on docs/pipeline/depth.md)."""
+    from matplotlib.figure import Figure
+
+    def near(index: int) -> np.ndarray:
+        truth = scene.load_optional("gt/depth", index)
+        return scene.load_optional("gt/dynamic_mask", index) & np.isfinite(truth) & (truth > 0) & (truth < NEAR)
+
+    index = max(range(len(scene)), key=lambda i: int(near(i).sum()))
+    name, truth, moving = scene.frames[index].name, scene.load_optional("gt/depth", index), near(index)
+    panels = [("image", scene.load_image(index))]
+    for title, file in (("depth stage", prepared / "depth" / f"{name}.npy"),
+                        ("object-depth stage", prepared_depth_path(prepared, name))):
+        error = np.full(truth.shape, np.nan)
+        error[moving] = (np.load(file)[moving] / truth[moving] - 1.0) * 100.0
+        panels.append((f"{title}: movers < 15 m, median {np.nanmedian(error):+.1f} %", error))
+    fig = Figure(figsize=(11.0, 2.6), dpi=100, layout="constrained")
+    for ax, (title, data) in zip(fig.subplots(1, 3), panels, strict=True):
+        if data.ndim == 3:
+            ax.imshow(data)
+        else:
+            shown = ax.imshow(data, cmap="RdBu_r", vmin=-8, vmax=8)
+        ax.set_title(title, fontsize="small")
+        ax.set_axis_off()
+    fig.colorbar(shown, ax=fig.axes, label="error (%), red: too deep", shrink=0.9)
+    fig.suptitle(f"{scene.root.parent.name}, frame {name}", fontsize="small")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, metadata={"Software": None})
+
+
 def scene_row(seed: int, traffic: str, fps: float | None, work: Path) -> dict:
     root = work / f"{traffic}-{fps or 'default'}-seed{seed}"
     scene_dir, prepared = root / "scene", root / "prepared"
@@ -71,6 +103,7 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=None)
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--figure", type=Path, default=None, help="write the error picture of the first seed here")
     args = parser.parse_args()
     old = json.loads(args.out.read_text())["rows"] if args.out.is_file() else []
     rows = []
@@ -87,6 +120,9 @@ def main() -> None:
               f"{row['mover_bias_before']:>+15.4f} -> {row['mover_bias_after']:+.4f}{near:>30}"
               f"{row['rescaled']:>6}/{row['objects']:<4}"
               f"  {motion.get('p50')} / {motion.get('p90')} / {motion.get('p99')}", flush=True)
+    if args.figure is not None:
+        root = args.work / f"{args.traffic}-{args.fps or 'default'}-seed{args.seeds[0]}"
+        error_figure(read_scene(root / "scene"), root / "prepared", args.figure)
     keys = {(r["traffic"], r["fps"], r["seed"]) for r in rows}
     kept = [r for r in old if (r["traffic"], r["fps"], r["seed"]) not in keys]
     args.out.parent.mkdir(parents=True, exist_ok=True)
