@@ -86,7 +86,7 @@ def roundtrip_errors(points: int = 100_000, seeds: int = 5) -> dict:
 
 def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic: str = "calm",
                   fps: float | None = None, prepare_set: list[str] = ()) -> tuple[Path, Path, dict]:
-    """Synthesise the scene and run the front end (radar, depth, masks) on it; with ``oracle`` only
+    """Synthesise the scene and run the front end (radar, depth, masks, object depth) on it; with ``oracle`` only
     the radar stage runs and depth and masks come from the scene's gt/ (an upper bound).
     ``prepare_set``: dotted ``KEY=VALUE`` overrides of the preset's PrepareConfig."""
     from radar4dgs.apps.prepare import run_prepare
@@ -98,7 +98,7 @@ def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic
     if not (scene_dir / "scene.json").is_file():
         synthesize(synth_config(preset_name, seed, traffic, fps), scene_dir, overwrite=True, progress=False)
     prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
-    stages = ("radar",) if oracle else ("radar", "depth", "masks")
+    stages = ("radar",) if oracle else ("radar", "depth", "masks", "object_depth")
     run_prepare(scene_dir, prepared, prepare_config(preset_name, prepare_set), only=stages, progress=False)
     source = "oracle" if oracle else "prepared"
     info = {"radar_source": "prepared", "depth_source": source, "mask_source": source}
@@ -158,7 +158,7 @@ def main() -> None:
         + (["--oracle"] if args.oracle else []) + ([] if args.fps is None else ["--fps", f"{args.fps:g}"])
         + (["--frontend-only"] if args.frontend_only else [])
         + (["--prepare-set", *args.prepare_set] if args.prepare_set else [])),
-        "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks)"}
+        "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks, object depth)"}
     if args.frontend_only:
         run_frontend(args, report)
         return
