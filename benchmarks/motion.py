@@ -158,7 +158,8 @@ def main() -> None:
         + (["--oracle"] if args.oracle else []) + ([] if args.fps is None else ["--fps", f"{args.fps:g}"])
         + (["--frontend-only"] if args.frontend_only else [])
         + (["--prepare-set", *args.prepare_set] if args.prepare_set else [])),
-        "torch_threads_fit": 1, "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks, object depth)"}
+        "torch_threads_fit": 1,
+        "inputs": "oracle depth and masks" if args.oracle else "prepared (radar, depth, masks, object depth)"}
     if args.frontend_only:
         run_frontend(args, report)
         return
