@@ -34,7 +34,7 @@ def car_returns(count: int, outliers: int, z: float, far: float) -> tuple[np.nda
     return uv, depth
 
 
-@given(bias=st.floats(-0.2, 0.2), count=st.integers(3, 40), outlier_share=st.floats(0.0, 0.49),
+@given(bias=st.floats(-0.2, 0.2), count=st.integers(10, 60), outlier_share=st.floats(0.0, 0.49),
        far=st.floats(0.2, 3.0))
 def test_a_biased_car_gets_its_radar_depth_back(bias, count, outlier_share, far):
     # Fewer than half the returns stray (ghosts, the road under the car): the median ratio is the
@@ -50,7 +50,7 @@ def test_a_biased_car_gets_its_radar_depth_back(bias, count, outlier_share, far)
 
 
 @pytest.mark.parametrize(("count", "bias", "pixels", "why"), [
-    (2, 0.05, 100, "too few returns for a median"),
+    (9, 0.05, 100, "too few returns for a steady scale"),
     (10, 0.40, 100, "a 29 % correction: the returns belong to something else"),
     (10, 0.05, 100, None),
 ])
@@ -109,8 +109,8 @@ def test_stage_on_a_synthetic_scene_brings_the_movers_to_their_true_depth(tmp_pa
     assert main(["prepare", str(scene), "--preset", "tiny", "--quiet"]) == 0
     assert main(["frontend-eval", str(scene), "--json", str(tmp_path / "fe.json")]) == 0
     report = json.loads((tmp_path / "fe.json").read_text())["object_depth"]
-    # The prior's distortion leaves the movers 1 % too deep; their returns bring them within 0.2 %.
-    assert report["mover_bias_before"] > 0.008 and abs(report["mover_bias_after"]) < 0.002
+    # The prior's distortion leaves the movers 1 % too deep; their returns bring them within 0.3 %.
+    assert report["mover_bias_before"] > 0.008 and abs(report["mover_bias_after"]) < 0.003
     assert report["mover_absrel_after"] < report["mover_absrel_before"]
     assert report["rescaled"] >= 6 and report["mover_pixels"] > 500
     summary = json.loads((scene / "prepared" / "object_depth" / "summary.json").read_text())
