@@ -37,22 +37,6 @@ RESULTS = Path(__file__).parent / "results" / "object-depth.json"
 NEAR = 15.0  # m: the close movers, a car or two lengths ahead
 
 
-def near_mover_errors(scene, prepared: Path) -> dict:
-    """Median |relative error| and bias of the depth before / after on true moving pixels nearer than NEAR."""
-    before, after = [], []
-    for index, frame in enumerate(scene.frames):
-        truth = scene.load_optional("gt/depth", index).astype(np.float64)
-        near = scene.load_optional("gt/dynamic_mask", index) & np.isfinite(truth) & (truth > 0) & (truth < NEAR)
-        before.append(np.load(prepared / "depth" / f"{frame.name}.npy")[near] / truth[near] - 1.0)
-        after.append(np.load(prepared_depth_path(prepared, frame.name))[near] / truth[near] - 1.0)
-    b, a = np.concatenate(before), np.concatenate(after)
-    if not len(b):
-        return {"near_pixels": 0}
-    return {"near_pixels": int(len(b)), "near_absrel_before": float(np.median(np.abs(b))),
-            "near_absrel_after": float(np.median(np.abs(a))), "near_bias_before": float(np.median(b)),
-            "near_bias_after": float(np.median(a))}
-
-
 def error_figure(scene, prepared: Path, path: Path) -> None:
     """The frame with the most near moving pixels: its image, and the signed depth error on the true
     moving pixels before and after the stage (the picture on docs/pipeline/depth.md)."""
@@ -84,6 +68,14 @@ def error_figure(scene, prepared: Path, path: Path) -> None:
     fig.savefig(path, metadata={"Software": None})
 
 
+def near_errors(scene, prepared: Path) -> dict:
+    """:func:`object_depth_metrics` on the true moving pixels nearer than NEAR, keys ``near_*``."""
+    near = object_depth_metrics(scene, prepared, max_depth=NEAR)
+    return {"near_pixels": near["mover_pixels"], "near_absrel_before": near["mover_absrel_before"],
+            "near_absrel_after": near["mover_absrel_after"], "near_bias_before": near["mover_bias_before"],
+            "near_bias_after": near["mover_bias_after"]}
+
+
 def scene_row(seed: int, traffic: str, fps: float | None, work: Path) -> dict:
     root = work / f"{traffic}-{fps or 'default'}-seed{seed}"
     scene_dir, prepared = root / "scene", root / "prepared"
@@ -93,7 +85,7 @@ def scene_row(seed: int, traffic: str, fps: float | None, work: Path) -> dict:
                 progress=False)
     scene = read_scene(scene_dir)
     return {"seed": seed, "traffic": traffic, "fps": fps, **object_depth_metrics(scene, prepared),
-            **near_mover_errors(scene, prepared), "image_motion_px": dynamic_motion_statistics(scene)}
+            **near_errors(scene, prepared), "image_motion_px": dynamic_motion_statistics(scene)}
 
 
 def main() -> None:

@@ -113,6 +113,11 @@ def test_stage_on_a_synthetic_scene_brings_the_movers_to_their_true_depth(tmp_pa
     assert report["mover_bias_before"] > 0.008 and abs(report["mover_bias_after"]) < 0.003
     assert report["mover_absrel_after"] < report["mover_absrel_before"]
     assert report["rescaled"] >= 6 and report["mover_pixels"] > 500
+    from radar4dgs.depth.objects import object_depth_metrics
+    from radar4dgs.io.scene import read_scene
+
+    nothing_near = object_depth_metrics(read_scene(scene), scene / "prepared", max_depth=0.5)
+    assert nothing_near["mover_pixels"] == 0 and nothing_near["mover_absrel_after"] is None
     summary = json.loads((scene / "prepared" / "object_depth" / "summary.json").read_text())
     written = sorted(p.stem for p in (scene / "prepared" / "object_depth").glob("*.npy"))
     assert written == [f["name"] for f in summary["frames"] if any(o["applied"] for o in f["objects"])]

@@ -134,9 +134,9 @@ def write_object_depth(scene, out_dir: Path, config: ObjectDepthConfig,
     return summary
 
 
-def object_depth_metrics(scene, prepared_dir: Path) -> dict[str, Any]:
-    """The prepared depth on the truly moving pixels (``gt/dynamic_mask``, finite ``gt/depth``)
-    before this stage (``<prepared>/depth``) and after it, pooled over every frame:
+def object_depth_metrics(scene, prepared_dir: Path, max_depth: float = np.inf) -> dict[str, Any]:
+    """The prepared depth on the truly moving pixels (``gt/dynamic_mask``, finite ``gt/depth`` below
+    ``max_depth``) before this stage (``<prepared>/depth``) and after it, pooled over every frame:
     ``mover_absrel_before`` / ``_after`` (median ``|d / d_true - 1|``), ``mover_bias_before`` /
     ``_after`` (median ``d / d_true - 1``: positive = too deep), ``mover_pixels``, and the stage's
     ``objects`` and ``rescaled`` counts."""
@@ -144,7 +144,7 @@ def object_depth_metrics(scene, prepared_dir: Path) -> dict[str, Any]:
     before, after = [], []
     for index, frame in enumerate(scene.frames):
         truth = scene.load_optional("gt/depth", index).astype(np.float64)
-        moving = scene.load_optional("gt/dynamic_mask", index) & np.isfinite(truth) & (truth > 0)
+        moving = scene.load_optional("gt/dynamic_mask", index) & np.isfinite(truth) & (truth > 0) & (truth < max_depth)
         original = np.load(prepared_dir / "depth" / f"{frame.name}.npy", allow_pickle=False).astype(np.float64)
         rescaled = np.load(prepared_depth_path(prepared_dir, frame.name), allow_pickle=False).astype(np.float64)
         moving &= np.isfinite(original) & np.isfinite(rescaled)
