@@ -253,7 +253,7 @@ def test_prepare_only_lists_the_stages(capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "100")
     with pytest.raises(SystemExit):
         cli.main(["prepare", "--help"])
-    assert "--only [{radar,depth,masks,flow}" in capsys.readouterr().out
+    assert "--only [{radar,depth,masks,object_depth,flow}" in capsys.readouterr().out
     with pytest.raises(SystemExit) as info:
         cli.build_command("prepare", ["/scene", "--only", "sky"])
     assert info.value.code == 2

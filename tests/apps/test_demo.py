@@ -32,7 +32,7 @@ def test_demo_tiny(tmp_path, capsys):
     # A second run reuses the scene and the prepared stages.
     assert main(["demo", "--preset", "tiny", "--seed", "2", "--out", str(out)]) == 0
     again = capsys.readouterr().out
-    assert "radar: skipped, depth: skipped, masks: skipped, flow: skipped" in again
+    assert "radar: skipped, depth: skipped, masks: skipped, object_depth: skipped, flow: skipped" in again
     assert "reusing the finished run" in again
 
     # What made it is recorded, and shown.

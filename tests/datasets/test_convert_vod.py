@@ -185,7 +185,7 @@ def test_inspect_and_prepare_accept_the_scene(converted, tmp_path):
     with pytest.warns(DepthWarning) as record:  # no prior, no weights, no radar fit on these few points
         status = run_prepare(scene.root, tmp_path / "prepared", progress=False)
     assert any("flat-world" in str(r.message) for r in record)
-    assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "flow": "ran"}
+    assert status == {"radar": "ran", "depth": "ran", "masks": "ran", "object_depth": "ran", "flow": "ran"}
     summary = json.loads((tmp_path / "prepared" / "radar" / "summary.json").read_text())
     assert summary["num_ok"] == 4 and summary["disagreement"]["rmse"] < 0.05
     assert all(f["dynamic"] == 1 for f in summary["frames"])  # the 3 m/s mover
