@@ -56,8 +56,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "seg-train": ("radar4dgs.apps.seg_train", "SegTrainCommand",
         "Train the radar-camera dynamic segmentation network on scenes with gt/dynamic_mask."),
     "prepare": ("radar4dgs.apps.prepare", "PrepareCommand",
-        "Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, the movers' depth "
-        "from their radar returns, scene flow."),
+        "Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, movers' depth, flow."),
     "frontend-eval": ("radar4dgs.evaluate.frontend", "FrontendEvalCommand",
         "Score the prepared front-end outputs of a scene against its ground truth (gt/)."),
     "fit-motion": ("radar4dgs.apps.fit_motion", "FitMotionCommand",

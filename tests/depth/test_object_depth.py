@@ -17,7 +17,7 @@ from radar4dgs.io.scene_files import prepared_depth_path
 
 def car_scene(true_depth: float, bias: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(20, 30) prepared depth: a 30 m wall with a car (rows 5-14, columns 10-19) at ``true_depth``
-    drawn ``bias`` too deep; its labels and the car's true depth."""
+    drawn ``bias`` too deep; its component labels and the car's mask."""
     depth = np.full((20, 30), 30.0)
     car = np.zeros((20, 30), bool)
     car[5:15, 10:20] = True

@@ -245,8 +245,7 @@ def _radarless_note(stage_dir: Path) -> str:
 
 @dataclass
 class PrepareCommand:
-    """Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, the movers' depth
-    from their radar returns, scene flow."""
+    """Run the front end on a scene: radar ego-motion, metric depth, sky and dynamic masks, movers' depth, flow."""
 
     # The scene folder.
     scene: tyro.conf.Positional[Path]
