@@ -3,7 +3,7 @@ is rescaled by its own radar returns (:mod:`radar4dgs.depth.objects`), against t
 
 Each scene is generated (``small`` preset, the traffic and frame rate given) and prepared up to the
 object-depth stage (radar, depth, masks, object_depth; no flow); the rows are
-:func:`radar4dgs.depth.objects.object_depth_metrics` (pooled over every frame's truly moving pixels)
+:func:`radar4dgs.evaluate.dynamic_depth.object_depth_metrics` (pooled over every frame's truly moving pixels)
 plus the same on the movers nearer than 15 m, where a few per cent of depth is a visible error, and
 the image-motion statistics of the scene's dynamic pixels.
 
@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from radar4dgs.apps.prepare import run_prepare  # noqa: E402
 from radar4dgs.datasets.synth import synthesize  # noqa: E402
-from radar4dgs.depth.objects import object_depth_metrics  # noqa: E402
+from radar4dgs.evaluate.dynamic_depth import object_depth_metrics  # noqa: E402
 from radar4dgs.io.atomic import atomic_write_json  # noqa: E402
 from radar4dgs.io.preview import dynamic_motion_statistics  # noqa: E402
 from radar4dgs.io.scene import read_scene  # noqa: E402

@@ -113,7 +113,7 @@ def test_stage_on_a_synthetic_scene_brings_the_movers_to_their_true_depth(tmp_pa
     assert report["mover_bias_before"] > 0.008 and abs(report["mover_bias_after"]) < 0.003
     assert report["mover_absrel_after"] < report["mover_absrel_before"]
     assert report["rescaled"] >= 6 and report["mover_pixels"] > 500
-    from radar4dgs.depth.objects import object_depth_metrics
+    from radar4dgs.evaluate.dynamic_depth import object_depth_metrics
     from radar4dgs.io.scene import read_scene
 
     nothing_near = object_depth_metrics(read_scene(scene), scene / "prepared", max_depth=0.5)

@@ -26,8 +26,7 @@ from scipy import ndimage
 
 from radar4dgs.depth.config import ObjectDepthConfig
 from radar4dgs.io.atomic import atomic_save_npy, atomic_write_json
-from radar4dgs.io.scene import read_json_file, read_mask_png
-from radar4dgs.io.scene_files import OBJECT_DEPTH, prepared_depth_path
+from radar4dgs.io.scene import read_mask_png
 from radar4dgs.radar.process import load_radar_dynamics_flags
 
 
@@ -59,9 +58,9 @@ def component_scales(depth: np.ndarray, labels: np.ndarray, uv: np.ndarray, z: n
         uv: (N, 2) int pixel (column, row) of each dynamic return, inside the image.
         z: (N,) camera z-depth of each return.
     """
-    at_return = labels[uv[:, 1], uv[:, 0]] if len(uv) else np.zeros(0, dtype=labels.dtype)
+    at_return = labels[uv[:, 1], uv[:, 0]]
     sizes = np.bincount(labels.ravel(), minlength=int(labels.max()) + 1)
-    prepared = depth[uv[:, 1], uv[:, 0]] if len(uv) else np.zeros(0)
+    prepared = depth[uv[:, 1], uv[:, 0]]
     rows = []
     for label in range(1, len(sizes)):
         on = (at_return == label) & np.isfinite(prepared) & (prepared > 0)
@@ -132,30 +131,3 @@ def write_object_depth(scene, out_dir: Path, config: ObjectDepthConfig,
                "median_abs_correction": float(np.median(np.abs(np.array(applied) - 1.0))) if applied else 0.0}
     atomic_write_json(out_dir / "summary.json", summary)
     return summary
-
-
-def object_depth_metrics(scene, prepared_dir: Path, max_depth: float = np.inf) -> dict[str, Any]:
-    """The prepared depth on the truly moving pixels (``gt/dynamic_mask``, finite ``gt/depth`` below
-    ``max_depth``) before this stage (``<prepared>/depth``) and after it, pooled over every frame:
-    ``mover_absrel_before`` / ``_after`` (median ``|d / d_true - 1|``), ``mover_bias_before`` /
-    ``_after`` (median ``d / d_true - 1``: positive = too deep), ``mover_pixels``, and the stage's
-    ``objects`` and ``rescaled`` counts."""
-    prepared_dir = Path(prepared_dir)
-    before, after = [], []
-    for index, frame in enumerate(scene.frames):
-        truth = scene.load_optional("gt/depth", index).astype(np.float64)
-        moving = scene.load_optional("gt/dynamic_mask", index) & np.isfinite(truth) & (truth > 0) & (truth < max_depth)
-        original = np.load(prepared_dir / "depth" / f"{frame.name}.npy", allow_pickle=False).astype(np.float64)
-        rescaled = np.load(prepared_depth_path(prepared_dir, frame.name), allow_pickle=False).astype(np.float64)
-        moving &= np.isfinite(original) & np.isfinite(rescaled)
-        before.append(original[moving] / truth[moving] - 1.0)
-        after.append(rescaled[moving] / truth[moving] - 1.0)
-    b, a = np.concatenate(before), np.concatenate(after)
-    summary = read_json_file(prepared_dir / OBJECT_DEPTH / "summary.json")
-
-    def median(x: np.ndarray) -> float | None:
-        return float(np.median(x)) if len(x) else None
-
-    return {"mover_absrel_before": median(np.abs(b)), "mover_absrel_after": median(np.abs(a)),
-            "mover_bias_before": median(b), "mover_bias_after": median(a), "mover_pixels": int(len(b)),
-            "objects": int(summary.get("objects", 0)), "rescaled": int(summary.get("rescaled", 0))}

@@ -23,7 +23,8 @@ import numpy as np
 import torch
 
 from radar4dgs.evaluate.reconstruction import render_view
-from radar4dgs.io.scene import Scene, normalized_times, read_scene
+from radar4dgs.io.scene import Scene, normalized_times, read_json_file, read_scene
+from radar4dgs.io.scene_files import OBJECT_DEPTH, prepared_depth_path
 from radar4dgs.model.run import load_run
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import frame_view
@@ -63,6 +64,31 @@ def pixel_depth_errors(depth: np.ndarray, truth: np.ndarray, moving: np.ndarray)
     with np.errstate(invalid="ignore"):
         on = moving.astype(bool) & np.isfinite(depth) & np.isfinite(truth) & (depth > 0) & (truth > 0)
     return (depth[on] - truth[on]) / truth[on]
+
+
+def object_depth_metrics(scene: Scene, prepared_dir: str | Path, max_depth: float = np.inf) -> dict:
+    """The prepared depth on the truly moving pixels (``gt/dynamic_mask``, ``gt/depth`` below
+    ``max_depth``) before the object-depth stage (``<prepared>/depth``) and after it, pooled over every
+    frame: ``mover_absrel_before`` / ``_after`` (median ``|d / d_true - 1|``), ``mover_bias_before`` /
+    ``_after`` (median ``d / d_true - 1``: positive = too deep; None without such pixels),
+    ``mover_pixels``, and the stage's ``objects`` and ``rescaled`` counts. The stage multiplies a
+    finite positive depth by a positive scale, so both are scored on the same pixels."""
+    prepared_dir = Path(prepared_dir)
+    before, after = [], []
+    for index, frame in enumerate(scene.frames):
+        truth = scene.load_optional("gt/depth", index).astype(np.float64)
+        moving = scene.load_optional("gt/dynamic_mask", index) & (truth < max_depth)
+        before.append(pixel_depth_errors(np.load(prepared_dir / "depth" / f"{frame.name}.npy"), truth, moving))
+        after.append(pixel_depth_errors(np.load(prepared_depth_path(prepared_dir, frame.name)), truth, moving))
+    b, a = np.concatenate(before), np.concatenate(after)
+    summary = read_json_file(prepared_dir / OBJECT_DEPTH / "summary.json")
+
+    def median(x: np.ndarray) -> float | None:
+        return float(np.median(x)) if len(x) else None
+
+    return {"mover_absrel_before": median(np.abs(b)), "mover_absrel_after": median(np.abs(a)),
+            "mover_bias_before": median(b), "mover_bias_after": median(a), "mover_pixels": int(len(b)),
+            "objects": int(summary.get("objects", 0)), "rescaled": int(summary.get("rescaled", 0))}
 
 
 def summarize(errors: np.ndarray, counted: str = "gaussians") -> dict:

@@ -35,7 +35,7 @@ Radar metrics:
         moving ground-truth object within the gate. ``object_observable_fraction``: of the matched
         objects, those whose returns spread enough in azimuth for a full per-scan fit.
 
-Object-depth metrics (:func:`radar4dgs.depth.objects.object_depth_metrics`): ``mover_absrel_before`` /
+Object-depth metrics (:func:`radar4dgs.evaluate.dynamic_depth.object_depth_metrics`): ``mover_absrel_before`` /
     ``_after`` and ``mover_bias_before`` / ``_after``, the prepared depth on the truly moving pixels
     before and after each moving object is rescaled by its radar returns.
 """
@@ -234,7 +234,7 @@ def evaluate_depth(scene: Scene, prepared_dir: Path) -> dict:
 
 
 def evaluate_object_depth(scene: Scene, prepared_dir: Path) -> dict:
-    from radar4dgs.depth.objects import object_depth_metrics
+    from radar4dgs.evaluate.dynamic_depth import object_depth_metrics
 
     return object_depth_metrics(scene, prepared_dir)
 
