@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.radar.config import RadarObjectConfig
+from radar4dgs.radar.doppler import angle_jacobians
 from radar4dgs.radar.tracking import smooth_tracks, track_detections
 
 OBJECTS_FILE = "objects.json"
@@ -130,6 +131,36 @@ def pooled_std(residual: np.ndarray, dof: int, config: RadarObjectConfig) -> flo
     return math.sqrt((total + prior_dof * config.residual_prior_std ** 2) / weight)
 
 
+def direction_noise(jacobians: np.ndarray) -> np.ndarray:
+    """(2, 2) expected scatter ``sum_i E[delta_i delta_i^T]`` of the returns' planar direction errors,
+    from their (2, N, 2) angle-noise Jacobians (``sigma_az dd/daz``, ``sigma_el dd/del``, planar parts)."""
+    return np.einsum("kni,knj->ij", jacobians, jacobians)
+
+
+def corrected_least_squares(A: np.ndarray, b: np.ndarray, noise: np.ndarray, radar_velocity: np.ndarray
+                            ) -> np.ndarray | None:
+    """(2,) velocity from (N, 2) noisy planar directions ``A`` and (N,) ``b``, corrected for the errors in
+    ``A`` (corrected least squares, Fuller 1987, "Measurement Error Models", 2.2), or None when the
+    corrected normal matrix is not positive definite (the spread is no larger than the noise).
+
+    ``b_i = v_r_i + d~_i . v_s`` is compensated with the noisy direction ``d~_i = d_i + delta_i``, so
+    ``b_i = d~_i . v - delta_i . (v - v_s)``: the regressor's noise enters both sides.
+    ``E[A^T A] = A0^T A0 + noise`` and ``E[A^T b] = A0^T A0 v + noise v_s``, hence
+    ``v = (A^T A - noise)^-1 (A^T b - noise v_s)``. Plain least squares instead blends ``v`` with the
+    radar's velocity ``v_s`` across the line of sight, by ``noise / (A^T A)``: 3 % for a car whose
+    returns spread 1.7 deg in azimuth with 0.3 deg of noise, 0.4 m/s when it crosses at 10 m/s while
+    the ego drives 15 m/s.
+
+    Args:
+        noise: (2, 2) :func:`direction_noise` of these returns. radar_velocity: (2,) planar world
+        velocity of the radar ``v_s``.
+    """
+    normal = A.T @ A - noise
+    if float(np.linalg.eigvalsh(normal)[0]) <= 0.0:
+        return None
+    return np.linalg.solve(normal, A.T @ b - noise @ radar_velocity)
+
+
 @dataclass(frozen=True)
 class VelocityFit:
     """One object's planar velocity from its returns (module doc).
@@ -172,12 +203,16 @@ def radial_fit(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig
 
 
 def fit_planar_velocity(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig | None = None,
-                        rng: np.random.Generator | None = None) -> VelocityFit:
+                        rng: np.random.Generator | None = None, jacobians: np.ndarray | None = None,
+                        radar_velocity: np.ndarray | None = None) -> VelocityFit:
     """Robust planar velocity of one rigid object (module doc).
 
     Args:
         A: (N, 2) planar (world x, y) parts of the unit directions radar -> return, N >= 1.
         b: (N,) compensated radial velocities (m/s, positive = receding).
+        jacobians: (2, N, 2) planar parts of the returns' angle-noise Jacobians and radar_velocity: (2,)
+            the radar's planar world velocity; with both (and ``correct_direction_noise``) the final least
+            squares is corrected for the directions' noise (:func:`corrected_least_squares`).
     """
     config = config or RadarObjectConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -202,6 +237,12 @@ def fit_planar_velocity(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig 
         observable = sigma / math.sqrt(smallest) <= config.max_tangential_std
     if not observable:
         return VelocityFit(radial, radial_cov, radial, u, inliers, False, spread, radial_sigma)
+    if config.correct_direction_noise and jacobians is not None and radar_velocity is not None:
+        noise = direction_noise(jacobians[:, inliers])
+        corrected = corrected_least_squares(Ai, bi, noise, np.asarray(radar_velocity, dtype=np.float64))
+        if corrected is not None:
+            v, normal = corrected, normal - noise
+            sigma = pooled_std(bi - Ai @ v, len(bi) - 2, config)
     covariance = sigma ** 2 * np.linalg.inv(normal)
     return VelocityFit(v, 0.5 * (covariance + covariance.T), radial, u, inliers, True, spread, sigma)
 
@@ -225,12 +266,16 @@ class Detection:
 
 
 def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, radar_to_world: np.ndarray,
-                   config: RadarObjectConfig | None = None, seed: int = 0) -> list[Detection]:
+                   config: RadarObjectConfig | None = None, seed: int = 0, radar_velocity: np.ndarray | None = None,
+                   angle_std: tuple[float, float] | None = None) -> list[Detection]:
     """The objects of one scan: dynamic points clustered in the world and fitted (module doc).
 
     Args:
         xyz: (N, 3) radar-frame positions; v_r_comp: (N,) compensated radial velocity (m/s);
         dynamic: (N,) bool; radar_to_world: (4, 4) at the scan's time.
+        radar_velocity: (3,) the radar's velocity in its own frame (the ego-motion fit's ``v_s``) and
+            angle_std: its (azimuth, elevation) noise std (rad); with both, each fit is corrected for the
+            directions' noise (:func:`corrected_least_squares`).
     Returns:
         Detections with at least ``min_returns`` inlier returns, in order of their first row.
     """
@@ -245,12 +290,17 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
     d_world = (xyz[rows] / distance[rows, None]) @ rotation.T
     p_world = xyz[rows] @ rotation.T + translation
     labels = cluster_points(p_world, config.radius, config.z_scale)
+    jacobians = velocity = None
+    if radar_velocity is not None and angle_std is not None and np.all(np.isfinite(radar_velocity)):
+        jacobians = (angle_jacobians(xyz[rows] / distance[rows, None], *angle_std) @ rotation.T)[..., :2]
+        velocity = (rotation @ np.asarray(radar_velocity, dtype=np.float64))[:2]
     detections = []
     for label in np.unique(labels):
         members = np.flatnonzero(labels == label)
         if len(members) < max(config.min_returns, 1):
             continue
-        fit = fit_planar_velocity(d_world[members, :2], v_r_comp[rows[members]], config, rng)
+        fit = fit_planar_velocity(d_world[members, :2], v_r_comp[rows[members]], config, rng,
+                                  None if jacobians is None else jacobians[:, members], velocity)
         if fit.inliers.sum() < max(config.min_returns, 1):
             continue
         detections.append(Detection(p_world[members[fit.inliers]].mean(axis=0), fit,

@@ -117,7 +117,8 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
             ok=np.bool_(fit.ok), inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32)),
             compressed=False)
         detections.append(detect_objects(xyz, comp, dynamic, scene.radar_to_world(i), config.objects,
-                                         seed=config.seed + i))
+                                         seed=config.seed + i, radar_velocity=used.velocity,
+                                         angle_std=(config.azimuth_std, config.elevation_std)))
         frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
                        "points": int(len(xyz)), "inliers": int(fit.inliers.sum()),
                        "dynamic": int(dynamic.sum()), "speed": _finite_or_none(used.speed),
