@@ -200,7 +200,8 @@ def test_crossing_car_is_not_slowed_by_azimuth_noise():
     v_car, v_radar = np.array([0.0, -10.0]), np.array([15.0, 0.0, 0.0])   # world; the radar's own frame
     errors = {True: [], False: []}
     for trial in range(200):
-        points = np.column_stack([40 + rng.uniform(-1, 1, 15), -8 + rng.uniform(-2.2, 2.2, 15), rng.uniform(0.3, 1.4, 15)])
+        points = np.column_stack([40 + rng.uniform(-1, 1, 15), -8 + rng.uniform(-2.2, 2.2, 15),
+                                  rng.uniform(0.3, 1.4, 15)])
         d = points / np.linalg.norm(points, axis=1, keepdims=True)
         raw = (d @ radar_to_world[:3, :3].T)[:, :2] @ v_car - d @ v_radar + rng.normal(0.0, 0.08, 15)
         r = np.linalg.norm(points, axis=1)
