@@ -53,6 +53,23 @@ def test_lift_flow_recovers_a_known_translation_with_a_moving_camera():
     assert (kept[:, 0] + flow[kept[:, 1].astype(int), kept[:, 0].astype(int), 0] <= W // 2 - 1).all()
 
 
+@pytest.mark.parametrize("scale_j", [0.99, 1.0, 1.01])
+def test_one_scale_for_both_ends_keeps_a_biased_prior_out_of_the_motion(scale_j):
+    # The prior draws the plane 2 % too deep in both frames; frame i's object scale corrects it exactly,
+    # frame j's own scale is off by +-1 % (sparse returns). Each end on its own frame's scale moves the
+    # plane 0.098 m (1 % of its 9.8 m in frame j) too far or too near; frame j's map times frame i's
+    # scale gives the motion.
+    motion = np.array([1.0, -0.2, 0.3])
+    flow, depth_i, depth_j, w2c_i, w2c_j = plane_scene(motion)
+    base_i, base_j = 1.02 * depth_i, 1.02 * depth_j
+    scaled_j = base_j / 1.02 * scale_j
+    valid = np.ones((H, W), bool)
+    own_i, own_j, _ = lift_flow(flow, depth_i, scaled_j, K, w2c_i, w2c_j, valid)
+    assert np.abs((own_j - own_i - motion)[:, 2]).mean() == pytest.approx(abs(scale_j - 1) * 9.8, rel=1e-3)
+    one_i, one_j, _ = lift_flow(flow, depth_i, base_j, K, w2c_i, w2c_j, valid, target_scale=depth_i / base_i)
+    assert np.allclose(one_j - one_i, motion, atol=1e-4)
+
+
 def test_lift_flow_drops_invalid_depth_and_shape_errors():
     flow, depth_i, depth_j, w2c_i, w2c_j = plane_scene()
     depth_i[:, :10] = np.inf

@@ -24,7 +24,9 @@ among its dense flow, its single translation, its radar object's predicted motio
 around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
 (``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
 frames. The stored ``flow`` of mask pixels the checks reject is then filled from the lifted pixels of
-their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. ``flow/config.json``
+their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. Where the object-depth
+stage rescaled a frame, frame j's end of each pair is lifted with the depth stage's map of j times
+frame i's object scale (``FlowConfig.one_scale_per_pair``): both ends on one scale. ``flow/config.json``
 holds the resolved :class:`FlowConfig`; ``summary.json`` counts the components per chosen model
 (``models``).
 """
@@ -99,13 +101,36 @@ def load_mask(scene, index: int, source: str, prepared_dir: str | Path | None,
     return read_mask_png(path, (scene.camera.height, scene.camera.width))
 
 
+class FrameInputs(NamedTuple):
+    """One frame's inputs: (H, W) float64 depth (None for the oracle flow, which takes the generator's
+    own), (H, W) float64 ``base`` the depth stage's own map where the object-depth stage rescaled it
+    (else ``depth`` itself), and (H, W) bool dynamic mask."""
+
+    depth: np.ndarray | None
+    base: np.ndarray | None
+    mask: np.ndarray
+
+
 def _frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
-                  depth_dir: str | Path | None, mask_dir: str | Path | None) -> tuple[np.ndarray | None, np.ndarray]:
-    """(H, W) float64 depth and (H, W) bool dynamic mask of frame ``index`` from the config's sources;
-    no depth for the oracle flow, which takes the generator's own."""
-    depth = None if config.method == "oracle" else load_depth(scene, index, config.depth_source, prepared_dir,
-                                                              depth_dir)
-    return depth, load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
+                  depth_dir: str | Path | None, mask_dir: str | Path | None) -> FrameInputs:
+    """The :class:`FrameInputs` of frame ``index`` from the config's sources."""
+    mask = load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
+    if config.method == "oracle":
+        return FrameInputs(None, None, mask)
+    depth = load_depth(scene, index, config.depth_source, prepared_dir, depth_dir)
+    base = depth
+    if config.depth_source == "prepared" and depth_dir is None and prepared_dir is not None:
+        stage_map = Path(prepared_dir) / "depth" / f"{scene.frames[index].name}.npy"
+        if prepared_depth_path(prepared_dir, scene.frames[index].name) != stage_map and stage_map.is_file():
+            base = np.load(stage_map, allow_pickle=False).astype(np.float64)
+    return FrameInputs(depth, base, mask)
+
+
+def object_scale(depth: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """(H, W) ``depth / base`` where both are finite and positive, else 1: the object-depth stage's scale."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = depth / base
+    return np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
 
 
 def _with_progress(pairs: list[tuple[int, int]], progress: bool | Callable[[Iterable], Iterable]) -> Iterable:
@@ -137,7 +162,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
                     backward: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, mask_i: np.ndarray,
                     mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray,
                     hints_i: list[ObjectHint] | None = None, hints_j: list[ObjectHint] | None = None,
-                    dt: float = 0.0) -> PairFlow:
+                    dt: float = 0.0, target_scale: np.ndarray | None = None) -> PairFlow:
     """The pseudo scene flow of one pair i -> j from its two dense flows (module doc).
 
     Args:
@@ -147,6 +172,8 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         K: (3, 3). world_to_cam_i, world_to_cam_j: (4, 4).
         hints_i, hints_j: the radar objects of frames i and j (None or empty: no radar guidance).
         dt: time of j minus time of i (s).
+        target_scale: (H, W) factor of frame i's pixels on the depth sampled in ``depth_j``
+            (:func:`.lift.lift_flow`; FlowConfig.one_scale_per_pair), None: 1.
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
@@ -165,7 +192,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     points_i, points_j, pixels = lift_flow(
         forward, depth_i, depth_j, K, world_to_cam_i, world_to_cam_j,
         mask_i & consistent & reliable, config.depth_edge_tolerance,
-        mask_j if config.require_dynamic_target else None)
+        mask_j if config.require_dynamic_target else None, target_scale)
     if config.outlier_filter:
         keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
                                     config.outlier_mad_factor, config.outlier_min_points,
@@ -240,7 +267,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pairs = frame_pairs(scene, config.skip_test_frames)
-    cache: dict[int, tuple[np.ndarray | None, np.ndarray]] = {}
+    cache: dict[int, FrameInputs] = {}
     # Load the first frame up front, so a missing input folder fails before any flow is computed.
     if pairs:
         first = pairs[0][0]
@@ -257,8 +284,11 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
         for k in (i, j):
             if k not in cache:
                 cache[k] = _frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
-        depth_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
-        depth_j, mask_j = cache[j]
+        depth_i, base_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
+        depth_j, base_j, mask_j = cache[j]
+        target_scale = None
+        if config.one_scale_per_pair and depth_i is not None and (base_i is not depth_i or base_j is not depth_j):
+            depth_j, target_scale = base_j, object_scale(depth_i, base_i)
         if estimator is None:
             result = oracle_pair_flow(scene, i, j, mask_i)
         else:
@@ -273,7 +303,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             result = pair_scene_flow(
                 config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
-                scene.frames[j].timestamp - scene.frames[i].timestamp)
+                scene.frames[j].timestamp - scene.frames[i].timestamp, target_scale)
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,

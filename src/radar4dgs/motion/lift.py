@@ -63,8 +63,8 @@ def backproject(pixels: np.ndarray, z: np.ndarray, K: np.ndarray, world_to_cam: 
 
 def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.ndarray,
               world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray, valid: np.ndarray,
-              edge_tolerance: float = 0.1, target_mask: np.ndarray | None = None
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              edge_tolerance: float = 0.1, target_mask: np.ndarray | None = None,
+              target_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lift 2D flow i -> j to world-frame 3D point pairs (pseudo scene flow).
 
     Pixel x of frame i with depth ``depth_i[x]`` gives the world point at time i; its match
@@ -79,6 +79,8 @@ def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.
         edge_tolerance: see :func:`sample_depth`.
         target_mask: optional (H, W) bool of frame j; a match must land where its 4 bilinear
             neighbours are all in it (e.g. frame j's dynamic mask).
+        target_scale: optional (H, W) factor of frame i's pixels applied to the depth sampled for
+            them in ``depth_j`` (one object scale for both ends of a pair).
     Returns:
         points_i (M, 3), points_j (M, 3) float64 world points and pixels (M, 2) float64 (u, v) of
         the kept pixels: ``valid`` with a finite positive depth_i and a valid depth_j sample.
@@ -97,6 +99,8 @@ def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.
         # All 4 neighbours inside the mask <=> the bilinear sample of the 0/1 mask is 1.
         corners = _corner_min(np.asarray(target_mask, dtype=np.float64), targets)
         ok &= corners > 0.5
+    if target_scale is not None:
+        z_j = z_j * np.asarray(target_scale, dtype=np.float64)[rows, cols]
     pixels, targets, z_j = pixels[ok], targets[ok], z_j[ok]
     points_i = backproject(pixels, z_i[rows[ok], cols[ok]], K, world_to_cam_i)
     points_j = backproject(targets, z_j, K, world_to_cam_j)
