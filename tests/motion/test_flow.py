@@ -10,7 +10,7 @@ import pytest
 
 from radar4dgs.motion.association import load_radar_dynamics
 from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.flow import frame_pairs, load_flow_pairs, prepare_flow
+from radar4dgs.motion.flow import frame_inputs, frame_pairs, load_flow_pairs, object_scale, prepare_flow
 from radar4dgs.motion.metrics import motion_frontend_metrics
 
 
@@ -43,6 +43,25 @@ def test_missing_prepared_inputs_name_the_folder_and_the_option(motion_scene, tm
     with pytest.raises(FileNotFoundError, match=r"radar.*radar_source='oracle'"):
         load_radar_dynamics(motion_scene, 0, "prepared", tmp_path)
     assert not (tmp_path / "flow").exists()
+
+
+def test_a_rescaled_frame_keeps_the_depth_stage_map_for_its_pairs_other_end(motion_scene, tmp_path):
+    # Frame 0's movers were rescaled by the object-depth stage, frame 1's were not: frame 0 reads the
+    # rescaled map and knows its scale (1 / 1.02 on the car, 1 elsewhere); frame 1 has one map only.
+    truth = [motion_scene.load_optional("gt/depth", k).astype(np.float64) for k in (0, 1)]
+    mask = motion_scene.load_optional("gt/dynamic_mask", 0)
+    for folder in ("depth", "object_depth"):
+        (tmp_path / folder).mkdir()
+    for k, depth in enumerate(truth):
+        np.save(tmp_path / "depth" / f"{motion_scene.frames[k].name}.npy", 1.02 * depth)
+    np.save(tmp_path / "object_depth" / f"{motion_scene.frames[0].name}.npy", np.where(mask, truth[0], 1.02 * truth[0]))
+    config = FlowConfig(depth_source="prepared", mask_source="oracle")
+    first, second = (frame_inputs(motion_scene, k, config, tmp_path, None, None) for k in (0, 1))
+    np.testing.assert_allclose(first.base, 1.02 * truth[0])
+    scale = object_scale(first.depth, first.base)
+    finite = np.isfinite(truth[0]) & (truth[0] > 0)
+    np.testing.assert_allclose(scale[mask & finite], 1 / 1.02)
+    assert np.all(scale[~mask] == 1.0) and second.base is second.depth
 
 
 @pytest.mark.parametrize(("flow_y", "out_of_view"), [(-0.2, 0.0), (-20.0, 1.0)])

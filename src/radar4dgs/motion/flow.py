@@ -111,13 +111,13 @@ class FrameInputs(NamedTuple):
     mask: np.ndarray
 
 
-def _frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
+def frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
                   depth_dir: str | Path | None, mask_dir: str | Path | None) -> FrameInputs:
     """The :class:`FrameInputs` of frame ``index`` from the config's sources."""
-    mask = load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
     if config.method == "oracle":
-        return FrameInputs(None, None, mask)
+        return FrameInputs(None, None, load_mask(scene, index, config.mask_source, prepared_dir, mask_dir))
     depth = load_depth(scene, index, config.depth_source, prepared_dir, depth_dir)
+    mask = load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
     base = depth
     if config.depth_source == "prepared" and depth_dir is None and prepared_dir is not None:
         stage_map = Path(prepared_dir) / "depth" / f"{scene.frames[index].name}.npy"
@@ -162,7 +162,8 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
                     backward: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, mask_i: np.ndarray,
                     mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray,
                     hints_i: list[ObjectHint] | None = None, hints_j: list[ObjectHint] | None = None,
-                    dt: float = 0.0, target_scale: np.ndarray | None = None) -> PairFlow:
+                    dt: float = 0.0, target_scale: np.ndarray | None = None,
+                    base_j: np.ndarray | None = None) -> PairFlow:
     """The pseudo scene flow of one pair i -> j from its two dense flows (module doc).
 
     Args:
@@ -172,8 +173,9 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         K: (3, 3). world_to_cam_i, world_to_cam_j: (4, 4).
         hints_i, hints_j: the radar objects of frames i and j (None or empty: no radar guidance).
         dt: time of j minus time of i (s).
-        target_scale: (H, W) factor of frame i's pixels on the depth sampled in ``depth_j``
-            (:func:`.lift.lift_flow`; FlowConfig.one_scale_per_pair), None: 1.
+        target_scale: (H, W) factor of frame i's pixels on the depth of their match in frame j, sampled
+            in ``base_j`` (the depth stage's map of j; :func:`.lift.lift_flow`, FlowConfig.one_scale_per_pair);
+            with ``base_j`` only; None: the match's depth is ``depth_j``'s.
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
@@ -189,10 +191,11 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         backward = rigid_object_flow(gray_j, gray_i, backward, mask_j, *rigid)
     consistent = consistency_mask(forward, backward, config.consistency_alpha, config.consistency_beta)
     reliable = reliable_pixels(gray_i, gray_j, forward, mask_i, failed, config)
+    lift_j, scale = (depth_j, None) if target_scale is None or base_j is None else (base_j, target_scale)
     points_i, points_j, pixels = lift_flow(
-        forward, depth_i, depth_j, K, world_to_cam_i, world_to_cam_j,
+        forward, depth_i, lift_j, K, world_to_cam_i, world_to_cam_j,
         mask_i & consistent & reliable, config.depth_edge_tolerance,
-        mask_j if config.require_dynamic_target else None, target_scale)
+        mask_j if config.require_dynamic_target else None, scale)
     if config.outlier_filter:
         keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
                                     config.outlier_mad_factor, config.outlier_min_points,
@@ -271,7 +274,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     # Load the first frame up front, so a missing input folder fails before any flow is computed.
     if pairs:
         first = pairs[0][0]
-        cache[first] = _frame_inputs(scene, first, config, prepared_dir, depth_dir, mask_dir)
+        cache[first] = frame_inputs(scene, first, config, prepared_dir, depth_dir, mask_dir)
     estimator = None if config.method == "oracle" else FlowEstimator(config)
     K = scene.camera.K
     objects, objects_note = _radar_objects(scene, prepared_dir, config)
@@ -283,12 +286,12 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     for i, j in iterator:
         for k in (i, j):
             if k not in cache:
-                cache[k] = _frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
+                cache[k] = frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
         depth_i, base_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
         depth_j, base_j, mask_j = cache[j]
         target_scale = None
         if config.one_scale_per_pair and depth_i is not None and (base_i is not depth_i or base_j is not depth_j):
-            depth_j, target_scale = base_j, object_scale(depth_i, base_i)
+            target_scale = object_scale(depth_i, base_i)
         if estimator is None:
             result = oracle_pair_flow(scene, i, j, mask_i)
         else:
@@ -303,7 +306,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             result = pair_scene_flow(
                 config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
-                scene.frames[j].timestamp - scene.frames[i].timestamp, target_scale)
+                scene.frames[j].timestamp - scene.frames[i].timestamp, target_scale, base_j)
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
