@@ -188,9 +188,9 @@ class ObjectDepthConfig:
 
     # Off: the stage writes only its summary and every later stage reads the depth stage's maps.
     enabled: bool = True
-    # A mask component is rescaled only with at least this many dynamic returns on it. Each frame is
-    # rescaled on its own, so a noisy scale does not cancel in a lifted displacement as a bias shared by
-    # consecutive frames does: on the hard tuning seeds 10 gave the lowest scene-flow error (3 and 30 higher).
+    # A mask component is rescaled only with at least this many dynamic returns on it, each frame on its
+    # own: on the hard tuning seeds 10 gave the lowest scene-flow error (3 and 30 higher), measured before
+    # the flow stage lifted both ends of a pair on one scale (FlowConfig.one_scale_per_pair).
     min_returns: int = 10
     # And only when the median ratio lies within 1 +- this: a larger correction says the returns
     # belong to something else (a merged component, a ghost), not that the prior is that far off.
