@@ -7,12 +7,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from radar4dgs.radar.config import RadarConfig, RadarObjectConfig
+from radar4dgs.radar.least_squares import direction_noise_gram
 from radar4dgs.radar.objects import (
     OBJECTS_FILE,
     cluster_points,
     corrected_least_squares,
     detect_objects,
-    direction_noise,
     fit_planar_velocity,
     load_radar_objects,
     optional_radar_objects,
@@ -174,8 +174,8 @@ def test_corrected_least_squares_is_exact_where_the_noise_averages_out(v, v_s, n
     A = np.concatenate([true + delta, true - delta])
     b = np.concatenate([true @ v + delta @ v_s, true @ v - delta @ v_s])   # compensated with the noisy d
     jacobians = np.concatenate([delta, delta])[None]                     # one angle, std = |delta|
-    np.testing.assert_allclose(direction_noise(jacobians), 2 * delta.T @ delta, rtol=1e-12)
-    found = corrected_least_squares(A, b, direction_noise(jacobians), v_s)
+    np.testing.assert_allclose(direction_noise_gram(jacobians), 2 * delta.T @ delta, rtol=1e-12)
+    found = corrected_least_squares(A, b, direction_noise_gram(jacobians), v_s)
     np.testing.assert_allclose(found, v, atol=1e-6 * (1 + np.abs(v).max() + np.abs(v_s).max()))
     plain = np.linalg.lstsq(A, b, rcond=None)[0]
     across = np.array([-math.sin(0.2), math.cos(0.2)])

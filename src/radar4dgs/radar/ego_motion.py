@@ -139,7 +139,7 @@ def estimate_ego_motion(xyz: Any, v_r: Any, config: RadarConfig | None = None,
     (``log(1-p)/log(1-w^k)``); the zero velocity (standstill) and ``prior`` are always scored too;
     the winner is refined by weighted least squares on its inliers, iterated, with the
     errors-in-variables correction for the noisy directions
-    (:func:`.least_squares._direction_noise_gram`); the final design matrix is checked for
+    (:func:`.least_squares.direction_noise_gram`); the final design matrix is checked for
     conditioning and the covariance is ``s^2 H^-1`` with ``s^2`` the reduced chi-square of the
     inliers (at least 1).
 

@@ -12,8 +12,9 @@ from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.doppler import band_sq, inliers_of
 
 
-def _direction_noise_gram(J: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(k, k) ``sum_i w_i Sigma_d,i``: the weighted covariance of the measured directions.
+def direction_noise_gram(J: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
+    """(k, k) ``sum_i w_i Sigma_d,i``: the (weighted; ``w`` None = 1) covariance of the measured
+    directions, from their (2, N, k) angle-noise Jacobians ``J``.
 
     The directions are measured with angle noise, so the design matrix is noisy and correlated with
     the Doppler error ``(J delta) . v`` that this noise causes (errors in variables): plain least
@@ -22,6 +23,8 @@ def _direction_noise_gram(J: np.ndarray, w: np.ndarray) -> np.ndarray:
     the worst-determined component: vz of an imaging radar with a narrow elevation field and ~1 deg
     elevation noise (a 0.02-0.03 m/s bias on the synthetic scenes, their dominant error).
     """
+    if w is None:
+        return np.einsum("sni,snj->ij", J, J)
     return np.einsum("n,sni,snj->ij", w, J, J)
 
 
@@ -32,7 +35,7 @@ def normal_equations(A: np.ndarray, b: np.ndarray, w: np.ndarray,
     zero-velocity prior ``axis . v = 0 +- std``.
 
     With ``J`` (the rows' angle Jacobians) the errors-in-variables correction
-    :func:`_direction_noise_gram` is subtracted, scaled by the variance factor
+    :func:`direction_noise_gram` is subtracted, scaled by the variance factor
     ``s^2 = min(1, reduced chi-square)`` of the plain weighted LS fit: the configured angle noise is
     an upper bound, data cleaner than the noise model get a proportionally smaller correction and
     noise-free data none (the plain solution is then exact). The correction is dropped when it
@@ -49,7 +52,7 @@ def normal_equations(A: np.ndarray, b: np.ndarray, w: np.ndarray,
     v = np.linalg.solve(Hp, g)
     r = b - A @ v
     s2 = min(1.0, float(np.sum(w * r * r)) / (len(b) - A.shape[1]))
-    Hc = H - s2 * _direction_noise_gram(J, w)
+    Hc = H - s2 * direction_noise_gram(J, w)
     if np.linalg.eigvalsh(Hc)[0] <= 0.5 * np.linalg.eigvalsh(H)[0]:
         return Hp, g
     return (Hc if prior is None else Hc + (Hp - H)), g

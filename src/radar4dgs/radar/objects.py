@@ -51,6 +51,7 @@ import numpy as np
 
 from radar4dgs.radar.config import RadarObjectConfig
 from radar4dgs.radar.doppler import angle_jacobians
+from radar4dgs.radar.least_squares import direction_noise_gram
 from radar4dgs.radar.tracking import smooth_tracks, track_detections
 
 OBJECTS_FILE = "objects.json"
@@ -131,12 +132,6 @@ def pooled_std(residual: np.ndarray, dof: int, config: RadarObjectConfig) -> flo
     return math.sqrt((total + prior_dof * config.residual_prior_std ** 2) / weight)
 
 
-def direction_noise(jacobians: np.ndarray) -> np.ndarray:
-    """(2, 2) expected scatter ``sum_i E[delta_i delta_i^T]`` of the returns' planar direction errors,
-    from their (2, N, 2) angle-noise Jacobians (``sigma_az dd/daz``, ``sigma_el dd/del``, planar parts)."""
-    return np.einsum("kni,knj->ij", jacobians, jacobians)
-
-
 def corrected_least_squares(A: np.ndarray, b: np.ndarray, noise: np.ndarray, radar_velocity: np.ndarray
                             ) -> np.ndarray | None:
     """(2,) velocity from (N, 2) noisy planar directions ``A`` and (N,) ``b``, corrected for the errors in
@@ -152,7 +147,7 @@ def corrected_least_squares(A: np.ndarray, b: np.ndarray, noise: np.ndarray, rad
     the ego drives 15 m/s.
 
     Args:
-        noise: (2, 2) :func:`direction_noise` of these returns. radar_velocity: (2,) planar world
+        noise: (2, 2) :func:`.least_squares.direction_noise_gram` of these returns. radar_velocity: (2,) planar world
         velocity of the radar ``v_s``.
     """
     normal = A.T @ A - noise
@@ -238,7 +233,7 @@ def fit_planar_velocity(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig 
     if not observable:
         return VelocityFit(radial, radial_cov, radial, u, inliers, False, spread, radial_sigma)
     if config.correct_direction_noise and jacobians is not None and radar_velocity is not None:
-        noise = direction_noise(jacobians[:, inliers])
+        noise = direction_noise_gram(jacobians[:, inliers])
         corrected = corrected_least_squares(Ai, bi, noise, np.asarray(radar_velocity, dtype=np.float64))
         if corrected is not None:
             v, normal = corrected, normal - noise
