@@ -112,7 +112,7 @@ class FrameInputs(NamedTuple):
 
 
 def frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path | None,
-                  depth_dir: str | Path | None, mask_dir: str | Path | None) -> FrameInputs:
+                 depth_dir: str | Path | None, mask_dir: str | Path | None) -> FrameInputs:
     """The :class:`FrameInputs` of frame ``index`` from the config's sources."""
     if config.method == "oracle":
         return FrameInputs(None, None, load_mask(scene, index, config.mask_source, prepared_dir, mask_dir))
@@ -120,9 +120,9 @@ def frame_inputs(scene, index: int, config: FlowConfig, prepared_dir: str | Path
     mask = load_mask(scene, index, config.mask_source, prepared_dir, mask_dir)
     base = depth
     if config.depth_source == "prepared" and depth_dir is None and prepared_dir is not None:
-        stage_map = Path(prepared_dir) / "depth" / f"{scene.frames[index].name}.npy"
-        if prepared_depth_path(prepared_dir, scene.frames[index].name) != stage_map and stage_map.is_file():
-            base = np.load(stage_map, allow_pickle=False).astype(np.float64)
+        stage_dir = Path(prepared_dir) / "depth"
+        if prepared_depth_path(prepared_dir, scene.frames[index].name).parent != stage_dir:
+            base = load_depth(scene, index, "prepared", None, stage_dir)
     return FrameInputs(depth, base, mask)
 
 
@@ -162,7 +162,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
                     backward: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, mask_i: np.ndarray,
                     mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray,
                     hints_i: list[ObjectHint] | None = None, hints_j: list[ObjectHint] | None = None,
-                    dt: float = 0.0, target_scale: np.ndarray | None = None,
+                    dt: float = 0.0, base_i: np.ndarray | None = None,
                     base_j: np.ndarray | None = None) -> PairFlow:
     """The pseudo scene flow of one pair i -> j from its two dense flows (module doc).
 
@@ -173,9 +173,9 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         K: (3, 3). world_to_cam_i, world_to_cam_j: (4, 4).
         hints_i, hints_j: the radar objects of frames i and j (None or empty: no radar guidance).
         dt: time of j minus time of i (s).
-        target_scale: (H, W) factor of frame i's pixels on the depth of their match in frame j, sampled
-            in ``base_j`` (the depth stage's map of j; :func:`.lift.lift_flow`, FlowConfig.one_scale_per_pair);
-            with ``base_j`` only; None: the match's depth is ``depth_j``'s.
+        base_i, base_j: the depth stage's maps of i and j where the object-depth stage rescaled
+            ``depth_i``, ``depth_j`` (:class:`FrameInputs`); with both and FlowConfig.one_scale_per_pair,
+            a match's depth is ``base_j``'s times frame i's scale ``depth_i / base_i`` (:func:`.lift.lift_flow`).
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
@@ -191,7 +191,9 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         backward = rigid_object_flow(gray_j, gray_i, backward, mask_j, *rigid)
     consistent = consistency_mask(forward, backward, config.consistency_alpha, config.consistency_beta)
     reliable = reliable_pixels(gray_i, gray_j, forward, mask_i, failed, config)
-    lift_j, scale = (depth_j, None) if target_scale is None or base_j is None else (base_j, target_scale)
+    lift_j, scale = depth_j, None
+    if config.one_scale_per_pair and base_i is not None and base_j is not None:
+        lift_j, scale = base_j, object_scale(depth_i, base_i)
     points_i, points_j, pixels = lift_flow(
         forward, depth_i, lift_j, K, world_to_cam_i, world_to_cam_j,
         mask_i & consistent & reliable, config.depth_edge_tolerance,
@@ -289,9 +291,6 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
                 cache[k] = frame_inputs(scene, k, config, prepared_dir, depth_dir, mask_dir)
         depth_i, base_i, mask_i = cache.pop(i)  # pairs are visited in order; frame i is not needed again
         depth_j, base_j, mask_j = cache[j]
-        target_scale = None
-        if config.one_scale_per_pair and depth_i is not None and (base_i is not depth_i or base_j is not depth_j):
-            target_scale = object_scale(depth_i, base_i)
         if estimator is None:
             result = oracle_pair_flow(scene, i, j, mask_i)
         else:
@@ -306,7 +305,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             result = pair_scene_flow(
                 config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
-                scene.frames[j].timestamp - scene.frames[i].timestamp, target_scale, base_j)
+                scene.frames[j].timestamp - scene.frames[i].timestamp, base_i, base_j)
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
