@@ -4,6 +4,8 @@ fallback to today's step without radar objects."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -157,6 +159,32 @@ def test_without_radar_objects_the_flow_is_todays():
         for a, b in zip(unchecked[:5], today[:5], strict=True):
             assert np.array_equal(a, b)
 
+
+def test_an_object_the_radar_sees_well_takes_the_rigid_motion_and_its_rim_keeps_the_dense_flow():
+    pair = object_pair(shift=20.0, scale=1.0)
+    # The mask bleeds 4 px onto the static background; a dense flow 3 px off on the object and
+    # right (zero) on that rim, favoured by the dense margin the way a per-pixel flow can win there.
+    mask = cv2.dilate(pair["mask_a"].astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    dense = np.where(pair["mask_a"][..., None], pair["flow"] + [3.0, 0.0], 0.0).astype(np.float32)
+    favoured = {"radar_dense_margin": 10.0}
+    today, _, counts = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+                                   FlowConfig(**favoured))
+    assert counts["dense"] == 1 and np.array_equal(today, dense)  # the premise
+    trusted = FlowConfig(radar_rigid_min_returns=4, **favoured)  # hint() carries 4 returns
+    flow, failed, counts = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+                                       trusted)
+    assert counts["dense"] == 0 and not failed.any()
+    assert np.median(object_error(flow, pair)) < 0.5
+    far_rim = mask & (cv2.distanceTransform((~pair["mask_a"]).astype(np.uint8), cv2.DIST_L2, 5) >= 3)
+    assert far_rim.sum() > 100
+    # Most of the rim keeps its (right) dense flow; with the ratio at 0 the rigid motion takes all of it.
+    assert (np.linalg.norm(flow[far_rim], axis=1) == 0).mean() > 0.6
+    rigid_only = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+                             dataclasses.replace(trusted, radar_pixel_dense_ratio=0.0))[0]
+    assert (np.linalg.norm(rigid_only[far_rim], axis=1) == 0).mean() == 0
+    fewer = dataclasses.replace(trusted, radar_rigid_min_returns=5)
+    assert np.array_equal(object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+                                      fewer)[0], dense)
 
 def test_returns_vote_for_the_component_they_land_on_or_near():
     labels = np.zeros((40, 60), dtype=np.int32)

@@ -134,6 +134,17 @@ class FlowConfig:
     # seeds 1-3 and realistic 101-103, 2D and scene-flow EPE), 1 px cost 0.02 m of scene-flow EPE
     # on the realistic ones (the dense flow's small errors near the object's edges are kept).
     radar_dense_agreement: float = 0.0
+    # A component whose radar object has at least this many returns in the frame takes the best
+    # rigid candidate, whatever the dense flow's error (0 = off): the dense flow often matches a
+    # close car's grey levels better per pixel while missing its motion (rush 5 Hz tuning seeds:
+    # the prediction or match within 0.1-0.8 px of the truth, the chosen dense flow 1-6 px off),
+    # and with many returns the radar velocity is sound. Its pixels keep the dense flow only where
+    # that explains their neighbourhood clearly better (``radar_pixel_dense_ratio``).
+    radar_rigid_min_returns: int = 0
+    # In such a component, a pixel keeps its dense flow where its local photometric error
+    # (``pixel_error_window``) is below this fraction of the rigid motion's: the mask's rim on the
+    # road, or a part the rigid model misses, where the rigid motion is plainly wrong.
+    radar_pixel_dense_ratio: float = 0.4
     # A candidate motion must keep at least this fraction of the object's pixels inside frame j to
     # be scored (a car passing the camera leaves the image; too few pixels left cannot verify it).
     radar_min_inside: float = 0.25

@@ -15,7 +15,9 @@ Per connected component of the dynamic mask of frame a (one object):
    beats ``rigid_accept`` x its error), and the dense flow if its error is below
    ``radar_dense_margin`` x that one's; a radar prediction taking the object out of view wins (see
    :func:`choose_candidate`); with ``radar_dense_agreement`` > 0, pixels whose dense flow agrees
-   with the winner within that many px keep it.
+   with the winner within that many px keep it. A radar object with ``radar_rigid_min_returns``
+   returns or more takes the best rigid candidate whatever the dense flow's error, but each pixel
+   the dense flow explains clearly better locally keeps it (:func:`rigid_motion`).
 
 Components without a radar object get today's translation step unchanged. After the choice,
 :func:`reliable_pixels` marks the pixels the flow cannot be trusted on: components whose motion
@@ -208,10 +210,13 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
                 part_mask[rows[part], cols[part]] = True
             candidates = candidate_targets(gray_a, gray_b, part_mask, pixels[part], dense[part], hint, geometry,
                                            config)
-            model, _ = choose_candidate(gray_a, gray_b, pixels[part], candidates, config.rigid_accept,
-                                        config.radar_min_inside, config.radar_dense_margin)
+            if 0 < config.radar_rigid_min_returns <= len(hint.uv) and "radar" in candidates:
+                model, motion = rigid_motion(gray_a, gray_b, part_mask, pixels[part], candidates, config)
+            else:
+                model, _ = choose_candidate(gray_a, gray_b, pixels[part], candidates, config.rigid_accept,
+                                            config.radar_min_inside, config.radar_dense_margin)
+                motion = candidates[model] - pixels[part]
             counts[model] += 1
-            motion = candidates[model] - pixels[part]
             if config.radar_dense_agreement > 0:
                 agree = np.linalg.norm(dense[part] - motion, axis=1) <= config.radar_dense_agreement
                 motion = np.where(agree[:, None], dense[part], motion)
@@ -219,6 +224,40 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
             failed[rows[part], cols[part]] = no_better_than_chance(gray_a, gray_b, pixels[part],
                                                                    pixels[part] + motion, config)
     return out, failed, counts
+
+
+def rigid_motion(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
+                 candidates: dict[str, np.ndarray], config: FlowConfig) -> tuple[str, np.ndarray]:
+    """(the rigid model chosen, (N, 2) motion) of an object the radar sees well
+    (``FlowConfig.radar_rigid_min_returns``): the rigid candidates compared as in
+    :func:`choose_candidate` without the dense flow, and each pixel whose local photometric error
+    under the dense flow is below ``radar_pixel_dense_ratio`` x that under the rigid motion keeping
+    its dense flow. A rigid motion taking the object out of view is kept whole (nothing to compare).
+
+    Args:
+        component: (H, W) bool the object. pixels: (N, 2) its (u, v). candidates: :func:`candidate_targets`.
+    """
+    rigid = {name: targets for name, targets in candidates.items() if name != "dense"}
+    model, error = choose_candidate(gray_a, gray_b, pixels, rigid, config.rigid_accept, config.radar_min_inside)
+    motion = rigid[model] - pixels
+    if "dense" not in candidates or not np.isfinite(error):
+        return model, motion
+    dense_error = pixel_errors(gray_a, gray_b, component, pixels, candidates["dense"], config.pixel_error_window)
+    rigid_error = pixel_errors(gray_a, gray_b, component, pixels, rigid[model], config.pixel_error_window)
+    with np.errstate(invalid="ignore"):
+        clearer = dense_error < config.radar_pixel_dense_ratio * rigid_error  # NaN: no evidence, rigid stays
+    motion[clearer] = candidates["dense"][clearer] - pixels[clearer]
+    return model, motion
+
+
+def pixel_errors(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
+                 targets: np.ndarray, window: int) -> np.ndarray:
+    """(N,) :func:`local_photometric_error` of an object's (N, 2) ``pixels`` moved to (N, 2)
+    ``targets`` (NaN targets count as far outside b), scored over the (H, W) bool ``component``."""
+    flow = np.zeros((*component.shape, 2))
+    flow[pixels[:, 1], pixels[:, 0]] = targets - pixels
+    return local_photometric_error(gray_a, gray_b, np.nan_to_num(flow, nan=1e6), component,
+                                   window)[pixels[:, 1], pixels[:, 0]]
 
 
 def component_owners(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
@@ -250,10 +289,7 @@ def component_owners(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarr
                                     hint.velocity * geometry.dt)
         if targets is None:
             continue
-        flow = np.zeros((*component.shape, 2))
-        flow[pixels[:, 1], pixels[:, 0]] = targets - pixels
-        errors[k] = local_photometric_error(gray_a, gray_b, np.nan_to_num(flow, nan=1e6), component,
-                                            config.pixel_error_window)[pixels[:, 1], pixels[:, 0]]
+        errors[k] = pixel_errors(gray_a, gray_b, component, pixels, targets, config.pixel_error_window)
     scored = np.isfinite(errors).all(axis=0)
     best = np.argmin(np.where(np.isfinite(errors), errors, np.inf), axis=0)
     nearest_error = errors[owner, np.arange(len(pixels))]
