@@ -235,12 +235,13 @@ def rigid_motion(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, 
     its dense flow. A rigid motion taking the object out of view is kept whole (nothing to compare).
 
     Args:
-        component: (H, W) bool the object. pixels: (N, 2) its (u, v). candidates: :func:`candidate_targets`.
+        component: (H, W) bool the object. pixels: (N, 2) its (u, v). candidates: :func:`candidate_targets`
+            (always with the dense flow).
     """
     rigid = {name: targets for name, targets in candidates.items() if name != "dense"}
     model, error = choose_candidate(gray_a, gray_b, pixels, rigid, config.rigid_accept, config.radar_min_inside)
     motion = rigid[model] - pixels
-    if "dense" not in candidates or not np.isfinite(error):
+    if not np.isfinite(error):
         return model, motion
     dense_error = pixel_errors(gray_a, gray_b, component, pixels, candidates["dense"], config.pixel_error_window)
     rigid_error = pixel_errors(gray_a, gray_b, component, pixels, rigid[model], config.pixel_error_window)
