@@ -58,6 +58,7 @@ def test_oracle_flow_method_writes_the_truth(motion_scene, tmp_path):
     prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", method="oracle", mask_source="oracle"))
     metrics = motion_frontend_metrics(motion_scene, tmp_path)
     assert metrics["flow2d_epe_dynamic"] < 1e-3 and metrics["sceneflow_epe_dynamic"] < 1e-4
+    assert metrics["sceneflow_two_frame_pairs"] > 0 and metrics["sceneflow_epe_dynamic_two_frame"] < 1e-4
     skipping = [p for p in load_flow_pairs(tmp_path) if int(p["index_j"]) > int(p["index_i"]) + 1]
     assert skipping, "the tiny scene's training pairs skip its test frames"
     pair = skipping[0]
@@ -67,3 +68,17 @@ def test_oracle_flow_method_writes_the_truth(motion_scene, tmp_path):
     dynamic = motion_scene.load_optional("gt/dynamic_mask", i)
     assert len(pair["points_i"]) == int((pair["consistent"] & dynamic).sum()) > 0
     assert (valid | ~pair["consistent"]).all()
+
+
+def test_the_pairs_that_skip_a_test_frame_are_scored_against_the_composed_motion(motion_scene, tmp_path):
+    prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", method="oracle", mask_source="oracle"))
+    offset = np.array([0.3, 0.0, 0.4], dtype=np.float32)  # 0.5 m
+    for path in sorted((tmp_path / "flow").glob("*.npz")):
+        with np.load(path) as data:
+            arrays = {key: data[key] for key in data.files}
+        if int(arrays["index_j"]) > int(arrays["index_i"]) + 1:
+            arrays["points_j"] = arrays["points_j"] + offset
+            np.savez(path, **arrays)
+    metrics = motion_frontend_metrics(motion_scene, tmp_path)
+    assert metrics["sceneflow_epe_dynamic"] < 1e-4  # the adjacent pairs are untouched
+    assert metrics["sceneflow_epe_dynamic_two_frame"] == pytest.approx(0.5, abs=1e-4)

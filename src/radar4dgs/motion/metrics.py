@@ -46,8 +46,15 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
       of |(points_j - points_i) - gt/flow[pixel]|.
     - ``sceneflow_coverage``: fraction of gt-dynamic pixels (finite depth) that got a lifted pair.
     - ``flow2d_pairs``: pairs scored.
+    - ``sceneflow_epe_dynamic_two_frame`` (m, over the pair's span): the same error for the stored pairs
+      that skip a frame (around each held-out frame, ``FlowConfig.skip_test_frames``), which train
+      the field as much as the others: |(points_j - points_i) - true motion| with the true motion
+      composed over the skipped frame (:func:`radar4dgs.motion.truth.gt_scene_flow`), on pixels
+      whose point stays visible through it; None when no pair skips. ``sceneflow_two_frame_pairs``:
+      how many lifted points that scored.
     """
-    pairs = [p for p in load_flow_pairs(prepared_dir) if int(p["index_j"]) == int(p["index_i"]) + 1]
+    stored = load_flow_pairs(prepared_dir)
+    pairs = [p for p in stored if int(p["index_j"]) == int(p["index_i"]) + 1]
     if max_pairs is not None:
         pairs = pairs[:max_pairs]
     errors_2d, errors_3d = [], []
@@ -79,4 +86,25 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
             "flow2d_out_of_view": out_of_view / dynamic_total if dynamic_total else None,
             "sceneflow_epe_dynamic": float(e3.mean()) if len(e3) else None,
             "sceneflow_coverage": covered / dynamic_total if dynamic_total else None,
-            "flow2d_pairs": len(pairs)}
+            "flow2d_pairs": len(pairs), **two_frame_scene_flow(scene, stored, max_pairs)}
+
+
+def two_frame_scene_flow(scene, stored: list[dict], max_pairs: int | None = None) -> dict:
+    """``sceneflow_epe_dynamic_two_frame`` and ``sceneflow_two_frame_pairs`` (see
+    :func:`motion_frontend_metrics`) of the stored pairs that span more than one frame."""
+    skipping = [p for p in stored if int(p["index_j"]) > int(p["index_i"]) + 1]
+    if max_pairs is not None:
+        skipping = skipping[:max_pairs]
+    errors = []
+    for pair in skipping:
+        i, j = int(pair["index_i"]), int(pair["index_j"])
+        world_i, world_j, valid = gt_scene_flow(scene, i, j)
+        cols = pair["pixels"][:, 0].astype(np.int64)
+        rows = pair["pixels"][:, 1].astype(np.int64)
+        keep = (scene.load_optional("gt/dynamic_mask", i) & valid)[rows, cols]
+        predicted = (pair["points_j"] - pair["points_i"]).astype(np.float64)[keep]
+        truth = (world_j - world_i)[rows[keep], cols[keep]]
+        errors.append(np.linalg.norm(predicted - truth, axis=1))
+    e = np.concatenate(errors) if errors else np.zeros(0)
+    return {"sceneflow_epe_dynamic_two_frame": float(e.mean()) if len(e) else None,
+            "sceneflow_two_frame_pairs": int(len(e))}
