@@ -127,6 +127,24 @@ def pair_inputs(pair: dict) -> dict:
             "world_to_cam_i": np.eye(4), "world_to_cam_j": np.eye(4)}
 
 
+def test_a_car_passing_the_camera_leaves_the_view_on_its_side():
+    pair = object_pair(shift=0.0, scale=1.0)
+    rows, cols = np.nonzero(pair["mask_a"])
+    pixels = np.stack([cols, rows], axis=1)
+    # 13 m toward the camera from 12 m: every point ends 1 m behind it, left of the axis (u < cx).
+    targets = predicted_targets(pixels, pair["depth_a"][rows, cols], K, np.eye(4), np.eye(4),
+                                np.array([0.0, 0.0, -13.0]))
+    assert np.isfinite(targets).all() and (targets[:, 0] < -WIDTH).all()
+    # Frame b no longer shows it; the dense flow keeps it in place on the background.
+    b = np.where(pair["mask_a"], texture(HEIGHT, WIDTH, seed=1), pair["b"])
+    dense = np.zeros((HEIGHT, WIDTH, 2), dtype=np.float32)
+    passing = ObjectHint(hint(pair).uv, np.array([0.0, 0.0, -13.0 / DT]), track=0)
+    flow, failed, counts = object_flow(pair["a"], b, dense, pair["mask_a"], [passing], geometry(pair["depth_a"]),
+                                       FlowConfig())
+    assert counts["radar"] == 1 and not failed.any()
+    assert ((cols + flow[rows, cols, 0]) < -WIDTH).all()  # out of view: never lifted onto what b shows there
+
+
 def test_a_component_that_nothing_matches_is_dropped_not_lifted():
     pair = object_pair(shift=60.0, scale=1.2, swap_texture=True)
     inputs = pair_inputs(pair)

@@ -32,7 +32,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.object_hints import ObjectHint, component_claims, predicted_targets, split_by_returns
+from radar4dgs.motion.object_hints import (
+    ObjectHint,
+    component_claims,
+    passes_camera,
+    predicted_targets,
+    split_by_returns,
+)
 from radar4dgs.motion.rigid import component_translation, object_translation
 from radar4dgs.motion.sampling import bilinear_sample
 from radar4dgs.motion.warp_match import (
@@ -118,6 +124,8 @@ def candidate_targets(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndar
     if predicted is None or not np.isfinite(predicted).all():
         return candidates
     candidates["radar"] = predicted
+    if passes_camera(predicted, geometry.K).any():
+        return candidates  # leaving past the camera: nothing in b to match it against
     matched = matched_targets(gray_a, gray_b, component, pixels, predicted, config)
     if matched is not None:
         candidates["matched"] = matched
