@@ -7,7 +7,8 @@ Scene level, :func:`prepare_flow` writes ``<prepared>/flow/<frame>.npz`` for eac
 successor (the next frame, or with ``skip_test_frames`` the next TRAINING frame, so held-out test
 images never supervise the field), with keys
 
-    ``flow``       (H, W, 2) float32  forward 2D flow, this frame -> ``index_j``
+    ``flow``       (H, W, 2) float32  forward 2D flow, this frame -> ``index_j`` (a pixel whose radar
+                                      prediction passes the camera lands ~1e5 px out: out of view)
     ``consistent`` (H, W) bool        forward-backward consistent and landing inside frame j
     ``points_i``   (M, 3) float32     world points of the kept pixels at this frame's time
     ``points_j``   (M, 3) float32     the same surface points at frame j's time
