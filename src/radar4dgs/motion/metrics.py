@@ -69,14 +69,9 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
             landing[..., 1] >= -0.5) & (landing[..., 1] <= height - 0.5)
         out_of_view += int((dynamic & ~in_view).sum())
         errors_2d.append(np.linalg.norm(pair["flow"][in_view] - gt2d[in_view], axis=1))
-        motion = scene.load_optional("gt/flow", i)
-        cols = pair["pixels"][:, 0].astype(np.int64)
-        rows = pair["pixels"][:, 1].astype(np.int64)
-        keep = dynamic[rows, cols]
-        predicted = (pair["points_j"] - pair["points_i"]).astype(np.float64)[keep]
-        errors_3d.append(np.linalg.norm(predicted - motion[rows[keep], cols[keep]], axis=1))
+        errors_3d.append(lifted_motion_errors(pair, scene.load_optional("gt/flow", i), dynamic))
         dynamic_total += int(dynamic.sum())
-        covered += int(keep.sum())
+        covered += len(errors_3d[-1])
     e2 = np.concatenate(errors_2d) if errors_2d else np.zeros(0)
     e3 = np.concatenate(errors_3d) if errors_3d else np.zeros(0)
     p50, p90 = np.percentile(e2, [50, 90]) if len(e2) else (None, None)
@@ -89,6 +84,16 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
             "flow2d_pairs": len(pairs), **two_frame_scene_flow(scene, stored, max_pairs)}
 
 
+def lifted_motion_errors(pair: dict, motion: np.ndarray, scored: np.ndarray) -> np.ndarray:
+    """(K,) |(points_j - points_i) - true motion| (m) of a stored pair's lifted points whose pixel is
+    ``scored`` ((H, W) bool), against ``motion`` (H, W, 3), the true motion of each pixel's point."""
+    cols = pair["pixels"][:, 0].astype(np.int64)
+    rows = pair["pixels"][:, 1].astype(np.int64)
+    keep = scored[rows, cols]
+    predicted = (pair["points_j"] - pair["points_i"]).astype(np.float64)[keep]
+    return np.linalg.norm(predicted - motion[rows[keep], cols[keep]], axis=1)
+
+
 def two_frame_scene_flow(scene, stored: list[dict], max_pairs: int | None = None) -> dict:
     """``sceneflow_epe_dynamic_two_frame`` and ``sceneflow_two_frame_pairs`` (see
     :func:`motion_frontend_metrics`) of the stored pairs that span more than one frame."""
@@ -99,12 +104,7 @@ def two_frame_scene_flow(scene, stored: list[dict], max_pairs: int | None = None
     for pair in skipping:
         i, j = int(pair["index_i"]), int(pair["index_j"])
         world_i, world_j, valid = gt_scene_flow(scene, i, j)
-        cols = pair["pixels"][:, 0].astype(np.int64)
-        rows = pair["pixels"][:, 1].astype(np.int64)
-        keep = (scene.load_optional("gt/dynamic_mask", i) & valid)[rows, cols]
-        predicted = (pair["points_j"] - pair["points_i"]).astype(np.float64)[keep]
-        truth = (world_j - world_i)[rows[keep], cols[keep]]
-        errors.append(np.linalg.norm(predicted - truth, axis=1))
+        errors.append(lifted_motion_errors(pair, world_j - world_i, scene.load_optional("gt/dynamic_mask", i) & valid))
     e = np.concatenate(errors) if errors else np.zeros(0)
     return {"sceneflow_epe_dynamic_two_frame": float(e.mean()) if len(e) else None,
             "sceneflow_two_frame_pairs": int(len(e))}
