@@ -309,8 +309,8 @@ def summarize_frontend(report: dict) -> None:
         "flow2d_epe_dynamic_per_seed": flow2d, "flow2d_epe_dynamic_mean": float(np.mean(flow2d)),
         "flow2d_le_2px_seeds": int(sum(v <= 2.0 for v in flow2d)),
         "sceneflow_epe_dynamic_per_seed": sceneflow, "sceneflow_epe_dynamic_mean": float(np.mean(sceneflow)),
-        "sceneflow_epe_dynamic_two_frame_per_seed": [s["frontend"].get("sceneflow_epe_dynamic_two_frame")
-                                                     for s in seeds],
+        **{f"{key}_per_seed": [s["frontend"].get(key) for s in seeds]
+           for key in ("sceneflow_epe_dynamic_two_frame", "flow2d_epe_dynamic_two_frame")},
         "object_velocity_error_median_per_seed": [s["radar_objects"]["object_velocity_error_median"] for s in seeds],
         "object_velocity_error_p90_per_seed": p90,
         "object_velocity_p90_le_0.5_seeds": int(sum(v is not None and v <= 0.5 for v in p90)),

@@ -59,6 +59,7 @@ def test_oracle_flow_method_writes_the_truth(motion_scene, tmp_path):
     metrics = motion_frontend_metrics(motion_scene, tmp_path)
     assert metrics["flow2d_epe_dynamic"] < 1e-3 and metrics["sceneflow_epe_dynamic"] < 1e-4
     assert metrics["sceneflow_two_frame_pairs"] > 0 and metrics["sceneflow_epe_dynamic_two_frame"] < 1e-4
+    assert metrics["flow2d_epe_dynamic_two_frame"] < 1e-3
     skipping = [p for p in load_flow_pairs(tmp_path) if int(p["index_j"]) > int(p["index_i"]) + 1]
     assert skipping, "the tiny scene's training pairs skip its test frames"
     pair = skipping[0]
@@ -78,7 +79,9 @@ def test_the_pairs_that_skip_a_test_frame_are_scored_against_the_composed_motion
             arrays = {key: data[key] for key in data.files}
         if int(arrays["index_j"]) > int(arrays["index_i"]) + 1:
             arrays["points_j"] = arrays["points_j"] + offset
+            arrays["flow"] = arrays["flow"] + np.array([3.0, -4.0], dtype=arrays["flow"].dtype)  # 5 px
             np.savez(path, **arrays)
     metrics = motion_frontend_metrics(motion_scene, tmp_path)
-    assert metrics["sceneflow_epe_dynamic"] < 1e-4  # the adjacent pairs are untouched
+    assert metrics["sceneflow_epe_dynamic"] < 1e-4 and metrics["flow2d_epe_dynamic"] < 1e-3  # adjacent pairs untouched
     assert metrics["sceneflow_epe_dynamic_two_frame"] == pytest.approx(0.5, abs=1e-4)
+    assert metrics["flow2d_epe_dynamic_two_frame"] == pytest.approx(5.0, abs=1e-3)

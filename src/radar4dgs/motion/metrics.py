@@ -51,7 +51,9 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
       the field as much as the others: |(points_j - points_i) - true motion| with the true motion
       composed over the skipped frame (:func:`radar4dgs.motion.truth.gt_scene_flow`), on pixels
       whose point stays visible through it; None when no pair skips. ``sceneflow_two_frame_pairs``:
-      how many lifted points that scored.
+      how many lifted points that scored. ``flow2d_epe_dynamic_two_frame`` (px, over the pair's span):
+      those pairs' stored 2D flow against the true one (:func:`gt_flow_2d` with the skipped frame), on
+      the same pixels as ``flow2d_epe_dynamic``; None when no pair skips.
     """
     stored = load_flow_pairs(prepared_dir)
     pairs = [p for p in stored if int(p["index_j"]) == int(p["index_i"]) + 1]
@@ -63,12 +65,9 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
         i = int(pair["index_i"])
         gt2d, valid = gt_flow_2d(scene, i)
         dynamic = scene.load_optional("gt/dynamic_mask", i) & valid
-        landing = pixel_grid(*valid.shape) + gt2d
-        height, width = valid.shape
-        in_view = dynamic & (landing[..., 0] >= -0.5) & (landing[..., 0] <= width - 0.5) & (
-            landing[..., 1] >= -0.5) & (landing[..., 1] <= height - 0.5)
-        out_of_view += int((dynamic & ~in_view).sum())
-        errors_2d.append(np.linalg.norm(pair["flow"][in_view] - gt2d[in_view], axis=1))
+        errors, left = in_view_flow_errors(pair["flow"], gt2d, dynamic)
+        out_of_view += left
+        errors_2d.append(errors)
         errors_3d.append(lifted_motion_errors(pair, scene.load_optional("gt/flow", i), dynamic))
         dynamic_total += int(dynamic.sum())
         covered += len(errors_3d[-1])
@@ -84,6 +83,16 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
             "flow2d_pairs": len(pairs), **two_frame_scene_flow(scene, stored, max_pairs)}
 
 
+def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> tuple[np.ndarray, int]:
+    """(|flow - truth| (K,) px on the ``scored`` pixels whose true landing lies inside the image, how
+    many ``scored`` pixels land outside it). ``flow``, ``truth``: (H, W, 2); ``scored``: (H, W) bool."""
+    landing = pixel_grid(*scored.shape) + truth
+    height, width = scored.shape
+    in_view = scored & (landing[..., 0] >= -0.5) & (landing[..., 0] <= width - 0.5) & (
+        landing[..., 1] >= -0.5) & (landing[..., 1] <= height - 0.5)
+    return np.linalg.norm(flow[in_view] - truth[in_view], axis=1), int((scored & ~in_view).sum())
+
+
 def lifted_motion_errors(pair: dict, motion: np.ndarray, scored: np.ndarray) -> np.ndarray:
     """(K,) |(points_j - points_i) - true motion| (m) of a stored pair's lifted points whose pixel is
     ``scored`` ((H, W) bool), against ``motion`` (H, W, 3), the true motion of each pixel's point."""
@@ -95,16 +104,22 @@ def lifted_motion_errors(pair: dict, motion: np.ndarray, scored: np.ndarray) -> 
 
 
 def two_frame_scene_flow(scene, stored: list[dict], max_pairs: int | None = None) -> dict:
-    """``sceneflow_epe_dynamic_two_frame`` and ``sceneflow_two_frame_pairs`` (see
+    """``sceneflow_epe_dynamic_two_frame``, ``sceneflow_two_frame_pairs`` and
+    ``flow2d_epe_dynamic_two_frame`` (see
     :func:`motion_frontend_metrics`) of the stored pairs that span more than one frame."""
     skipping = [p for p in stored if int(p["index_j"]) > int(p["index_i"]) + 1]
     if max_pairs is not None:
         skipping = skipping[:max_pairs]
-    errors = []
+    errors, errors_2d = [], []
     for pair in skipping:
         i, j = int(pair["index_i"]), int(pair["index_j"])
         world_i, world_j, valid = gt_scene_flow(scene, i, j)
-        errors.append(lifted_motion_errors(pair, world_j - world_i, scene.load_optional("gt/dynamic_mask", i) & valid))
+        dynamic = scene.load_optional("gt/dynamic_mask", i) & valid
+        errors.append(lifted_motion_errors(pair, world_j - world_i, dynamic))
+        truth_2d, landed = image_flow(world_j, valid, scene, j)
+        errors_2d.append(in_view_flow_errors(pair["flow"], truth_2d, dynamic & landed)[0])
     e = np.concatenate(errors) if errors else np.zeros(0)
+    e2 = np.concatenate(errors_2d) if errors_2d else np.zeros(0)
     return {"sceneflow_epe_dynamic_two_frame": float(e.mean()) if len(e) else None,
-            "sceneflow_two_frame_pairs": int(len(e))}
+            "sceneflow_two_frame_pairs": int(len(e)),
+            "flow2d_epe_dynamic_two_frame": float(e2.mean()) if len(e2) else None}
