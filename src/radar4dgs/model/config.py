@@ -171,7 +171,7 @@ class LossConfig:
     # Weight of |log d - log d_prepared| on the dynamic-mask pixels where the image trains them; 0 = off.
     # Scale-free: lambda_d's pull in depth on a car 20 % too deep is 16x weaker at 20 m than at 5 m.
     dynamic_depth_weight: float = 0.0
-    # lambda_obj: BCE of the rendered dynamic mask against the prepared mask (stage 3 only).
+    # lambda_obj: BCE of the rendered dynamic mask vs the prepared mask (stage 3); 0.25 / 1.0 lost 0.2 / 0.7 dB PSNR*.
     object_weight: float = 0.05
     # lambda_sky: BCE of the rendered opacity against the sky mask (opacity 0 on sky).
     sky_weight: float = 0.05
