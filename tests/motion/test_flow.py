@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from radar4dgs.motion.association import load_radar_dynamics
-from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.config import FlowConfig, flow_settings_at_width
 from radar4dgs.motion.flow import frame_inputs, frame_pairs, load_flow_pairs, object_scale, prepare_flow
 from radar4dgs.motion.metrics import motion_frontend_metrics
 
@@ -84,3 +84,15 @@ def test_2d_flow_error_counts_only_pixels_that_stay_in_view(tmp_path, monkeypatc
         assert metrics["flow2d_epe_dynamic"] is None
     else:
         assert np.isclose(metrics["flow2d_epe_dynamic"], 3.0) and np.isclose(metrics["flow2d_epe_dynamic_p90"], 3.0)
+
+
+def test_pixel_lengths_scale_with_the_scene_width_when_asked():
+    config = FlowConfig(reference_width=320)
+    wide = flow_settings_at_width(config, 640)
+    assert (wide.rigid_search, wide.radar_search, wide.radar_association_radius) == (24, 48, 8.0)
+    assert (wide.fill_max_distance, wide.pixel_error_window, wide.rigid_wide_search) == (20.0, 11, 0)
+    assert (wide.rigid_min_pixels, wide.consistency_beta) == (config.rigid_min_pixels, config.consistency_beta)
+    assert flow_settings_at_width(config, 160).pixel_error_window == 3  # 2.5 rounds to an odd 3
+    assert flow_settings_at_width(config, 320) is config
+    default = FlowConfig()
+    assert flow_settings_at_width(default, 640) is default  # off by default

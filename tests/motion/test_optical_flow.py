@@ -28,6 +28,18 @@ def test_dis_recovers_a_known_shift():
     assert np.allclose(dis_flow(rgb, np.repeat(b[..., None], 3, axis=2)), dis_flow(a, b))
 
 
+def test_dis_on_resized_images_gives_the_full_size_flow():
+    """With ``max_width`` DIS sees the images at that width; its flow is brought back to the full size
+    and scale, so a 640-px pair shifted by (+24, +8) px reads (24, 8) everywhere inside."""
+    big = texture(420, 720)
+    a = np.ascontiguousarray(big[30:390, 40:680])
+    b = np.ascontiguousarray(big[22:382, 16:656])  # content moves by (+24, +8) pixels
+    flow = dis_flow(a, b, "medium", max_width=320)
+    assert flow.shape == (360, 640, 2) and flow.dtype == np.float32
+    assert np.median(flow[40:-40, 60:-60].reshape(-1, 2), axis=0) == pytest.approx([24.0, 8.0], abs=0.3)
+    np.testing.assert_array_equal(dis_flow(a, b, "medium", max_width=640), dis_flow(a, b, "medium"))
+
+
 def test_consistency_mask_constant_flows():
     forward = np.zeros((H, W, 2), np.float32)
     forward[..., 0] = 3.0

@@ -28,8 +28,8 @@ frames. The stored ``flow`` of mask pixels the checks reject is then filled from
 their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. Where the object-depth
 stage rescaled a frame, frame j's end of each pair is lifted with the depth stage's map of j times
 frame i's object scale (``FlowConfig.one_scale_per_pair``): both ends on one scale. ``flow/config.json``
-holds the resolved :class:`FlowConfig`; ``summary.json`` counts the components per chosen model
-(``models``).
+holds the resolved :class:`FlowConfig` (pixel lengths scaled to the scene's width when
+``reference_width`` asks); ``summary.json`` counts the components per chosen model (``models``).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from radar4dgs.config import to_dict
 from radar4dgs.io.atomic import atomic_directory, atomic_save_npz, atomic_write_json
 from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene_files import FLOW_MASKS, prepared_depth_path
-from radar4dgs.motion.config import FlowConfig
+from radar4dgs.motion.config import FlowConfig, flow_settings_at_width
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
 from radar4dgs.motion.object_hints import ObjectHint, frame_hints
 from radar4dgs.motion.objects_flow import PairGeometry, fill_rejected_flow, object_flow, reliable_pixels
@@ -269,7 +269,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     Returns:
         a summary dict (pairs, kept points per pair, consistent fraction, flow seconds per call).
     """
-    config = config or FlowConfig()
+    config = flow_settings_at_width(config or FlowConfig(), scene.camera.width)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pairs = frame_pairs(scene, config.skip_test_frames)

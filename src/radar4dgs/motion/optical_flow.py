@@ -31,19 +31,33 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(image, dtype=np.uint8), cv2.COLOR_RGB2GRAY)
 
 
-def dis_flow(image_a: np.ndarray, image_b: np.ndarray, preset: str = "medium", dis: Any = None) -> np.ndarray:
+def dis_flow(image_a: np.ndarray, image_b: np.ndarray, preset: str = "medium", dis: Any = None,
+             max_width: int = 0) -> np.ndarray:
     """Dense optical flow a -> b with OpenCV DIS.
 
     Args:
         image_a, image_b: (H, W, 3) RGB or (H, W) grey uint8 images.
         preset: "ultrafast", "fast" or "medium".
         dis: an existing ``cv2.DISOpticalFlow`` to reuse (saves its construction per pair).
+        max_width: wider images are resized to this width (area averaging) for DIS, and its flow is
+            resized back and scaled to the full size (``FlowConfig.dense_width``); 0 = full size.
     Returns:
         (H, W, 2) float32 flow, ``image_a[v, u] ~ image_b[v + dv, u + du]``.
     """
+    import cv2
+
     if dis is None:
         dis = make_dis(preset)
-    return dis.calc(to_gray(image_a), to_gray(image_b), None).astype(np.float32, copy=False)
+    gray_a, gray_b = to_gray(image_a), to_gray(image_b)
+    height, width = gray_a.shape
+    if not 0 < max_width < width:
+        return dis.calc(gray_a, gray_b, None).astype(np.float32, copy=False)
+    size = (max_width, max(1, round(height * max_width / width)))
+    small = dis.calc(*(cv2.resize(g, size, interpolation=cv2.INTER_AREA) for g in (gray_a, gray_b)), None)
+    flow = cv2.resize(small, (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    flow[..., 0] *= width / size[0]
+    flow[..., 1] *= height / size[1]
+    return flow
 
 
 def make_dis(preset: str = "medium"):
@@ -143,7 +157,7 @@ class FlowEstimator:
         """(H, W, 2) float32 flow a -> b."""
         if self._raft is not None:
             return raft_flow(self._raft, image_a, image_b, self.config.raft_iterations)
-        return dis_flow(image_a, image_b, dis=self._dis)
+        return dis_flow(image_a, image_b, dis=self._dis, max_width=self.config.dense_width)
 
 
 def consistency_mask(flow_fw: np.ndarray, flow_bw: np.ndarray, alpha: float = 0.01,
