@@ -23,7 +23,7 @@ class FlowConfig:
     dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     # DIS runs on the images resized to at most this width (px), its flow scaled back; 0 = full size. Its patches
     # and pyramid are sized in pixels: on 640-px renders of hard tuning seeds 224-227 at full size the 2-D error on
-    # moving pixels was 3.54 px, at 320 2.40 (scene flow 0.086 -> 0.081 m). RAFT always sees the full image.
+    # moving pixels was 3.54 px, at 320 2.33 (scene flow 0.086 -> 0.080 m). RAFT always sees the full image.
     dense_width: int = 320
     # RAFT state dict (a torchvision checkpoint or a dict with a "state_dict"/"model" entry).
     raft_checkpoint: Path | None = None
