@@ -28,6 +28,13 @@ def image_motion_edges(width: int, edges: tuple[float, ...] = IMAGE_MOTION_EDGES
     return [e * width / IMAGE_MOTION_REFERENCE_WIDTH for e in edges]
 
 
+def lands_in_image(positions: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(...) bool: which (..., 2) pixel positions (u, v) land inside a ``width`` x ``height`` image
+    (pixel centres at integers, edges inclusive)."""
+    u, v = positions[..., 0], positions[..., 1]
+    return (u >= -0.5) & (u <= width - 0.5) & (v >= -0.5) & (v <= height - 0.5)
+
+
 def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: np.ndarray, uv: np.ndarray,
                    depth: np.ndarray, flow: np.ndarray, inside: tuple[int, int] | None,
                    with_keep: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -51,9 +58,7 @@ def project_motion(K: np.ndarray, cam_to_world: np.ndarray, world_to_next_cam: n
         moved = (cam @ K.T)[:, :2] / cam[:, 2:3]
     keep = front
     if inside is not None:
-        width, height = inside
-        keep = keep & (moved[:, 0] >= -0.5) & (moved[:, 0] <= width - 0.5) & (moved[:, 1] >= -0.5) & (
-            moved[:, 1] <= height - 0.5)
+        keep = keep & lands_in_image(moved, *inside)
     displacement = np.linalg.norm(moved[keep] - uv[keep], axis=1)
     return (keep, displacement) if with_keep else displacement
 

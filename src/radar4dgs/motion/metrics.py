@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from radar4dgs.io.image_motion import lands_in_image
 from radar4dgs.motion.flow import load_flow_pairs
 from radar4dgs.motion.sampling import pixel_grid
 from radar4dgs.motion.truth import gt_scene_flow, image_flow
@@ -86,10 +87,8 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
 def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> tuple[np.ndarray, int]:
     """(|flow - truth| (K,) px on the ``scored`` pixels whose true landing lies inside the image, how
     many ``scored`` pixels land outside it). ``flow``, ``truth``: (H, W, 2); ``scored``: (H, W) bool."""
-    landing = pixel_grid(*scored.shape) + truth
     height, width = scored.shape
-    in_view = scored & (landing[..., 0] >= -0.5) & (landing[..., 0] <= width - 0.5) & (
-        landing[..., 1] >= -0.5) & (landing[..., 1] <= height - 0.5)
+    in_view = scored & lands_in_image(pixel_grid(height, width) + truth, width, height)
     return np.linalg.norm(flow[in_view] - truth[in_view], axis=1), int((scored & ~in_view).sum())
 
 
