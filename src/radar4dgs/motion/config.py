@@ -218,5 +218,5 @@ def flow_settings_at_width(config: FlowConfig, width: int) -> FlowConfig:
     for name in PIXEL_LENGTH_SETTINGS:
         value = getattr(config, name) * scale
         changes[name] = int(round(value)) if isinstance(getattr(config, name), int) else float(value)
-    changes["pixel_error_window"] = max(1, changes["pixel_error_window"] | 1)
+    changes["pixel_error_window"] |= 1
     return replace(config, **changes)

@@ -54,7 +54,7 @@ def dis_flow(image_a: np.ndarray, image_b: np.ndarray, preset: str = "medium", d
         return dis.calc(gray_a, gray_b, None).astype(np.float32, copy=False)
     size = (max_width, max(1, round(height * max_width / width)))
     small = dis.calc(*(cv2.resize(g, size, interpolation=cv2.INTER_AREA) for g in (gray_a, gray_b)), None)
-    flow = cv2.resize(small, (width, height), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    flow = cv2.resize(small, (width, height), interpolation=cv2.INTER_LINEAR)  # float32, a new array
     flow[..., 0] *= width / size[0]
     flow[..., 1] *= height / size[1]
     return flow
