@@ -181,13 +181,16 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     for pair in flow["per_pair"]:
         assert pair["dynamic_pixels"] == read_mask_png(masks / FLOW_MASKS / f"{pair['frame']}.png").sum()
     # Written again without for_flow, the folder loses its flow masks (the flow stage would read them).
+    config = preset(SegInferConfig, "tiny")
+    config.completion.for_flow = False
     with torch_threads(1):
-        assert prepare_masks(scene, prepared, preset(SegInferConfig, "tiny"))["completion"] == "off"
+        assert prepare_masks(scene, prepared, config)["completion"] == "off"
     assert not (masks / FLOW_MASKS).exists()
-    # By default (for_flow off) the training run's prepared folder has no flow masks.
-    assert not (tiny_trained_run / "scene" / "prepared" / "masks" / FLOW_MASKS).exists()
+    # By default (for_flow on) the training run's prepared folder has flow masks, and training read the
+    # network's own.
+    assert (tiny_trained_run / "scene" / "prepared" / "masks" / FLOW_MASKS).is_dir()
     assert json.loads((tiny_trained_run / "scene" / "prepared" / "masks" / "summary.json").read_text())[
-        "completion"] == "off"
+        "completion"] == "flow masks"
 
 
 def test_small_object_windows_only_add_moving_pixels_to_the_networks_masks(tiny_trained_run, tmp_path):
@@ -195,8 +198,10 @@ def test_small_object_windows_only_add_moving_pixels_to_the_networks_masks(tiny_
     the windows add are mostly moving ones (tiny calm seed 4, ground-truth masks)."""
     from radar4dgs.io.scene import read_mask_png
 
-    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "windows", small_objects=True)
-    _, plain, plain_summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "network", small_objects=False)
+    scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "windows", small_objects=True,
+                                                 for_flow=False)
+    _, plain, plain_summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "network", small_objects=False,
+                                                     for_flow=False)
     assert summary["small_objects"] == "radar tracks" and summary["completion"] == "off"
     assert plain_summary["small_objects"] == "off"
     added = added_true = 0

@@ -145,10 +145,11 @@ class FlowConfig:
     # and with many returns the radar velocity is sound. Its pixels keep the dense flow only where
     # that explains their neighbourhood clearly better (``radar_pixel_dense_ratio``). 30 lowers the
     # 2-D EPE of hard tuning seeds 214-223 from 0.92 to 0.72 px and their scene flow from 0.081 to
-    # 0.075 m (new tuning seeds 224-233: 1.42 -> 1.03 px), but did not train better (novel-view PSNR*
-    # 23.88 -> 21.84 dB on 214, 22.60 -> 22.44 on 217, 20.72 -> 18.72 on 224, 22.02 -> 23.50 on 226; full
-    # small, one run each), so it is off: for users who need the 2-D flow itself.
-    radar_rigid_min_returns: int = 0
+    # 0.075 m (new tuning seeds 224-233: 1.42 -> 1.03 px). Alone it did not train better (four paired
+    # full-small runs, -0.68 dB PSNR* on average); with masks.completion.for_flow (the default since
+    # 2026-12-02) three more pairs gained -0.18 / +0.89 / +0.99 dB (hard tuning seeds 225 / 227 / 228;
+    # benchmarks/results/flow-rigid-completed-masks.json), so 30 is the default.
+    radar_rigid_min_returns: int = 30
     # In such a component, a pixel keeps its dense flow where its local photometric error
     # (``pixel_error_window``) is below this fraction of the rigid motion's: the mask's rim on the
     # road, or a part the rigid model misses, where the rigid motion is plainly wrong.

@@ -48,11 +48,12 @@ class CompletionConfig:
     enabled: bool = False  # complete the masks with the radar objects (skipped without <prepared>/radar/objects.json)
     # With enabled off, still write completed masks for the flow stage alone (<prepared>/masks/flow/):
     # the flow stage then steps the whole car the radar sees, not the part the network found, while
-    # training, actors and evaluation keep the network's masks. Off by default: on the rush 5 Hz
-    # tuning seeds it lowered the 2-D flow error (214 / 215: 0.89 / 1.10 -> 0.82 / 0.80 px) but
-    # trained a worse scene (214, small, 600 iterations: novel-view PSNR* 20.46 -> 19.73 dB;
-    # benchmarks/results/masks-training.json).
-    for_flow: bool = False
+    # training, actors and evaluation keep the network's masks. On by default (2026-12-02), with
+    # flow.radar_rigid_min_returns 30: hard tuning seeds' 2-D flow error 1.27 -> 0.73 px at 320 px (224-233
+    # less 225/227/228) and 2.33 -> 1.30 px at 640 px (224-227); full small, novel-view PSNR* -0.18 / +0.89 /
+    # +0.99 dB on 225 / 227 / 228 (benchmarks/results/flow-rigid-completed-masks.json). Alone, at 600
+    # iterations and older defaults, it had cost 214 0.7 dB (masks-training.json).
+    for_flow: bool = True
     min_returns: int = 3  # objects with fewer returns in front of the camera are left to the network
     margin_m: float = 0.3  # grow the hull by this many metres at the object's median depth
     depth_tolerance_m: float = 2.5  # keep hull pixels whose depth is within this of the returns' depth range
