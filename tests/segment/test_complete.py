@@ -186,8 +186,7 @@ def test_flow_stage_reads_masks_completed_for_it_and_training_keeps_the_networks
     with torch_threads(1):
         assert prepare_masks(scene, prepared, config)["completion"] == "off"
     assert not (masks / FLOW_MASKS).exists()
-    # By default (for_flow on) the training run's prepared folder has flow masks, and training read the
-    # network's own.
+    # By default (for_flow on) the training run's prepared folder has flow masks.
     assert (tiny_trained_run / "scene" / "prepared" / "masks" / FLOW_MASKS).is_dir()
     assert json.loads((tiny_trained_run / "scene" / "prepared" / "masks" / "summary.json").read_text())[
         "completion"] == "flow masks"
@@ -201,7 +200,7 @@ def test_small_object_windows_only_add_moving_pixels_to_the_networks_masks(tiny_
     scene, prepared, summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "windows", small_objects=True,
                                                  for_flow=False)
     _, plain, plain_summary = masks_of_tiny_run(tiny_trained_run, tmp_path / "network", small_objects=False,
-                                                     for_flow=False)
+                                                 for_flow=False)
     assert summary["small_objects"] == "radar tracks" and summary["completion"] == "off"
     assert plain_summary["small_objects"] == "off"
     added = added_true = 0

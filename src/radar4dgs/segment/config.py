@@ -49,8 +49,8 @@ class CompletionConfig:
     # With enabled off, still write completed masks for the flow stage alone (<prepared>/masks/flow/):
     # the flow stage then steps the whole car the radar sees, not the part the network found, while
     # training, actors and evaluation keep the network's masks. On by default (2026-12-02), with
-    # flow.radar_rigid_min_returns 30: hard tuning seeds' 2-D flow error 1.27 -> 0.73 px at 320 px (224-233
-    # less 225/227/228) and 2.33 -> 1.30 px at 640 px (224-227); full small, novel-view PSNR* -0.18 / +0.89 /
+    # flow.radar_rigid_min_returns 30: hard tuning seeds' 2-D flow error 1.27 -> 0.73 px at 320 px (224, 226,
+    # 229-233) and 2.33 -> 1.30 px at 640 px (224-227); full small, novel-view PSNR* -0.18 / +0.89 /
     # +0.99 dB on 225 / 227 / 228 (benchmarks/results/flow-rigid-completed-masks.json). Alone, at 600
     # iterations and older defaults, it had cost 214 0.7 dB (masks-training.json).
     for_flow: bool = True

@@ -5,7 +5,7 @@
 ``save_prob``, ``<prepared>/masks/<frame>_prob.npy`` (float16 (H, W) probabilities), and
 ``<prepared>/masks/summary.json``. The shipped checkpoint is loaded unless one is named. With
 ``config.completion.enabled`` (off by default) the masks are completed with the radar objects of
-``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (off by default) and
+``<prepared>/radar/objects.json`` (``segment/complete.py``); with ``completion.for_flow`` (on by default) and
 ``enabled`` off, the completed masks go to ``<prepared>/masks/flow/<frame>.png`` instead, which only
 the flow stage reads (``radar4dgs.io.scene_files.FLOW_MASKS``). With ``completion.small_objects`` (on by
 default) the masks get a body-sized window at each object of a lasting radar track (a pedestrian's few
