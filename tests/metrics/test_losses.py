@@ -60,23 +60,6 @@ def test_flow_loss_hand_computed_translation():
     assert flow_loss(field, x_i, x_j, times_i, times_j, reduction="none").tolist() == pytest.approx([0.0, 5.0])
 
 
-def test_flow_loss_huber_is_the_squared_distance_below_the_threshold_and_linear_beyond():
-    field = Translation([2.0, 0.0, 0.0]).double()
-    x_i = torch.zeros(3, 3, dtype=torch.float64)
-    # warp 0 -> 0.5 moves by (1, 0, 0); the pairs miss it by 0.1, 0.5 and 3 m.
-    x_j = torch.tensor([[1.1, 0.0, 0.0], [1.0, 0.5, 0.0], [1.0, 0.0, 3.0]], dtype=torch.float64)
-    huber = flow_loss(field, x_i, x_j, 0.0, 0.5, reduction="none", huber=0.5).tolist()
-    # d <= 0.5: d^2; beyond: 2 * 0.5 * (d - 0.25) = d - 0.25, so the 3 m pair weighs 2.75, not 9.
-    assert huber == pytest.approx([0.01, 0.25, 2.75])
-    squared = flow_loss(field, x_i, x_j, 0.0, 0.5, reduction="none").tolist()
-    assert squared == pytest.approx([0.01, 0.25, 9.0])
-    # The gradient of the far pair's term with respect to its target is bounded: 2 * 0.5 = 1 in length.
-    target = x_j.clone().requires_grad_(True)
-    flow_loss(field, x_i, target, 0.0, 0.5, reduction="sum", huber=0.5).backward()
-    assert target.grad[2].norm().item() == pytest.approx(1.0)
-    assert target.grad[0].norm().item() == pytest.approx(0.2)
-
-
 def test_radar_loss_hand_computed_translation():
     # Radar at A = (0, 0, 0); velocity (10, 0, 0) m/s over a scene of 2 s, so t 0.0 -> 0.05 is
     # dt = 0.1 s and a displacement F = (1, 0, 0) m.

@@ -94,21 +94,3 @@ def test_prefit_leaves_out_the_terms_the_run_does_not_weight(one_torch_thread):
     field = new_field(config, motion, motion.flow.x_i, torch.device("cpu"), torch.float64)
     x = torch.as_tensor(motion.flow.x_i[:50])
     assert torch.allclose(field.displacement(x, 0.2, 0.6), torch.zeros_like(x))
-
-
-def test_prefit_with_flow_huber_resists_pairs_that_point_the_wrong_way(one_torch_thread):
-    """A fifth of the pairs land 5 m too high (a wrong match). Over the 0.1 of time of a pair a global
-    squared fit would lift the inliers by 0.2 x 5 m = 1 m; with ``losses.flow_huber`` 0.2 each wrong
-    pair pulls with a bounded force, so the inliers rise far less (their true vertical motion is 0)."""
-    motion = _translating_cloud()
-    wrong = np.arange(len(motion.flow.x_j)) % 5 == 0
-    motion.flow.x_j[wrong] += np.array([0.0, 0.0, 5.0])
-    x = torch.as_tensor(motion.flow.x_i[~wrong][:200])
-    rise = {}
-    for huber in (0.0, 0.2):
-        config = preset(TrainConfig, "tiny", optim={"field_prefit_iterations": 300}, losses={"flow_huber": huber})
-        field = new_field(config, motion, motion.flow.x_i, torch.device("cpu"), torch.float64)
-        with torch.no_grad():
-            rise[huber] = field.displacement(x, 0.3, 0.4)[:, 2].mean().item()
-    assert rise[0.0] > 0.45  # measured 0.61
-    assert rise[0.2] < 0.3  # measured 0.17

@@ -2,8 +2,7 @@
 functions the trainer and the standalone fit call.
 
 - ``L_flow = mean_n |D_tj(D_ti^-1(x_i)) - x_j|^2``: pseudo scene flow pairs (x_i at t_i, x_j at
-  t_j) must be carried onto each other. Squared Euclidean norm (m^2) per pair; optionally a Huber of
-  the distance instead (``flow_loss(huber=...)``), equal to it up to the threshold.
+  t_j) must be carried onto each other. Squared Euclidean norm (m^2) per pair.
 - ``L_rad = mean_n |F . (x - A) / |x - A| - v_r dt|``: F = D_tj(D_ti^-1(x)) - x, the predicted
   displacement of the point x of time t_i over dt = (timestamp_j - timestamp_i) seconds (a world
   vector: the world frame is the same at every time, so "the frame of time i" is just the start
@@ -110,13 +109,10 @@ def velocity_residual(displacement: Tensor, velocity: Tensor, covariance: Tensor
 
 
 def flow_loss(field: DeformationField, x_i: Tensor, x_j: Tensor, t_i: Tensor | float, t_j: Tensor | float,
-              weight: Tensor | None = None, reduction: Reduction = "mean", huber: float = 0.0) -> Tensor:
+              weight: Tensor | None = None, reduction: Reduction = "mean") -> Tensor:
     """``L_flow`` for (N, 3) point pairs ``x_i`` (time ``t_i``) -> ``x_j`` (time ``t_j``); times
-    scalar or (N,) in [0, 1]; optional (N,) ``weight``. Mean (default) is the weighted mean.
-    ``huber`` > 0 (m): each pair's term is ``2 huber(d)`` of its distance d, equal to d^2 up to
-    ``huber`` and growing linearly beyond, so a pair the field cannot fit pulls with a bounded force."""
-    squared = flow_residual(field.warp(x_i, t_i, t_j), x_j)
-    return _reduce(2.0 * huber_of_squared(squared, huber) if huber > 0 else squared, weight, reduction)
+    scalar or (N,) in [0, 1]; optional (N,) ``weight``. Mean (default) is the weighted mean."""
+    return _reduce(flow_residual(field.warp(x_i, t_i, t_j), x_j), weight, reduction)
 
 
 def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Tensor | float,

@@ -177,8 +177,6 @@ class LossConfig:
     sky_weight: float = 0.05
     # Weight of L_flow (m^2) on the field.
     flow_weight: float = 1.0
-    # L_flow's Huber threshold (m; FitConfig.flow_huber, also in the field's pre-fit); 0 = squared distance.
-    flow_huber: float = 0.0
     # Weight of L_rad (m) on the field (as the standalone fit's radar_weight).
     radar_weight: float = 0.5
     # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off (0.1: -0.59 dB PSNR* on seed 214).
@@ -195,12 +193,13 @@ class LossConfig:
     radar_returns_as_points: bool = False
 
 
-# "auto": on for scenes whose poses come from odometry (scene.json's source says "poses_from_odometry" or
-# "poses_from_radar": radar integration, `convert aimotive`), off for the rest (exact simulator poses); "on" /
-# "off" force it. Pose refinement defaults to "auto": on synthetic scenes with odometry-sized pose noise it recovers
-# 3 dB of novel-view PSNR, and on the one recorded clip measured (aiMotive night, tiny, the hood cut off) it is
-# neutral (28.19 dB -> 28.13 at the recorded test poses, 28.27 with the test views optimised). Exposure
-# compensation defaults to "off": on that clip it cost 0.3 dB (docs/pipeline/training.md).
+# "auto": on for scenes whose poses come from odometry (scene.json's source says
+# "poses_from_odometry" or "poses_from_radar": radar integration, `convert aimotive`), off for the
+# rest (exact simulator poses); "on" / "off" force it. Pose refinement defaults to "auto": on
+# synthetic scenes with odometry-sized pose noise it recovers 3 dB of novel-view PSNR, and on the
+# one recorded clip measured (aiMotive night, tiny, the hood cut off) it is neutral (28.19 dB ->
+# 28.13 at the recorded test poses, 28.27 with the test views optimised). Exposure compensation
+# defaults to "off": on that clip it cost 0.3 dB (docs/pipeline/training.md).
 RefineMode = Literal["auto", "on", "off"]
 
 

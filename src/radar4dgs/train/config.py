@@ -60,8 +60,6 @@ class FitConfig:
     # Huber threshold on the Mahalanobis distance (standard deviations): beyond it a point pulls
     # with a constant force, so a wrong track cannot dominate (3: the same EPE on the tuning seeds).
     velocity_huber: float = 1.0
-    # L_flow's Huber threshold (m, metrics.losses.flow_loss); 0 = the squared distance of every pair.
-    flow_huber: float = 0.0
     # Also give each object's velocity to the dynamic pixels of frame i (lifted with depth_source,
     # radar_points_per_frame at most) whose nearest object return is within radar_gate: "off";
     # "no_flow" only for objects with fewer than velocity_flow_pairs flow pairs starting within

@@ -280,7 +280,7 @@ def _term_columns(flow: FlowSamples | None, radar: RadarSamples | None,
 
 def _term_loss(name: str, deformation: DeformationField, batch: list[torch.Tensor], fit: FitConfig) -> torch.Tensor:
     if name == "flow":
-        return flow_loss(deformation, *batch, huber=fit.flow_huber)
+        return flow_loss(deformation, *batch)
     if name == "radar":
         return radar_loss(deformation, *batch)
     return velocity_loss(deformation, *batch, position_std=fit.velocity_position_std, huber=fit.velocity_huber)

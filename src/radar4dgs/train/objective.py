@@ -63,10 +63,9 @@ def image_phase(config: TrainConfig, stage: int, step: int) -> tuple[bool, bool]
 
 
 def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
-                  generator: torch.Generator, device: torch.device, dtype: torch.dtype,
-                  flow_huber: float = 0.0) -> dict[str, Tensor]:
-    """``L_flow`` (Huber threshold ``flow_huber`` m, 0 = squared), ``L_rad`` and ``L_vel`` (each when
-    it has samples) on a random minibatch of the field's supervision; the draws are made in that order."""
+                  generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
+    """``L_flow``, ``L_rad`` and ``L_vel`` (each when it has samples) on a random minibatch of the
+    field's supervision; the draws are made in that order."""
     def draw(n: int) -> Tensor:
         return torch.randint(n, (min(batch, n),), generator=generator)
 
@@ -77,8 +76,7 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
     if motion.flow is not None:
         f = motion.flow
         i = draw(len(f)).numpy()
-        losses["flow"] = flow_loss(deformation, tensor(f.x_i[i]), tensor(f.x_j[i]), tensor(f.t_i[i]), tensor(f.t_j[i]),
-                                   huber=flow_huber)
+        losses["flow"] = flow_loss(deformation, tensor(f.x_i[i]), tensor(f.x_j[i]), tensor(f.t_i[i]), tensor(f.t_j[i]))
     if motion.radar is not None:
         r = motion.radar
         i = draw(len(r)).numpy()

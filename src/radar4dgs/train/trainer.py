@@ -422,7 +422,7 @@ class Trainer:
         losses = image_losses(render, target, config, stage, ignore_dynamic=ignore_dynamic)
         if ours and self.motion is not None:
             losses.update(motion_losses(model.field, self.motion, config.losses.motion_batch, generator,
-                                        self.device, self.dtype, config.losses.flow_huber))
+                                        self.device, self.dtype))
         losses.update(refinement_losses(state.poses, state.appearance))
         if model.actor_motion is not None:
             losses["actor_smooth"] = model.actor_motion.acceleration()
