@@ -16,7 +16,15 @@ from hypothesis import strategies as st
 from radar4dgs.config import preset
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import pair_scene_flow, prepare_flow
-from radar4dgs.motion.object_hints import ObjectHint, component_claims, predicted_targets, split_by_returns
+from radar4dgs.motion.object_hints import (
+    STATIC_TRACK,
+    ObjectHint,
+    component_claims,
+    predicted_targets,
+    project_returns,
+    split_by_returns,
+    static_hint,
+)
 from radar4dgs.motion.objects_flow import PairGeometry, choose_candidate, component_owners, object_flow
 from radar4dgs.motion.optical_flow import dis_flow
 from radar4dgs.motion.rigid import rigid_object_flow
@@ -85,7 +93,7 @@ def test_dense_flow_fails_and_the_radar_guided_match_recovers_shift_and_zoom():
     assert np.median(object_error(dense, pair)) > 10.0  # the premise: DIS loses the object
     # The depth estimate is 10 % off, so the prediction misses by ~7 px and 2 % of scale: the
     # match has to fix it.
-    flow, failed, counts = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
+    flow, failed, counts, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
                                        geometry(pair["depth_a"] * 1.1), FlowConfig())
     assert counts["matched"] == 1 and not failed.any()
     assert object_error(flow, pair).max() < 1.0
@@ -97,7 +105,7 @@ def test_dense_flow_fails_and_the_radar_guided_match_recovers_shift_and_zoom():
 def test_radar_guided_flow_recovers_large_shifts_and_zooms(shift, scale, depth_error):
     pair = object_pair(shift, scale)
     dense = dis_flow(pair["a"], pair["b"], "medium")
-    flow, failed, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
+    flow, failed, _, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
                                   geometry(pair["depth_a"] * depth_error), FlowConfig())
     assert not failed.any()
     assert object_error(flow, pair).max() < 1.0
@@ -112,7 +120,7 @@ def test_a_wrong_radar_prediction_is_corrected_by_the_match():
     predicted = predicted_targets(pixels, pair["depth_a"][rows, cols], K, np.eye(4), np.eye(4), wrong * DT)
     assert np.median(predicted[:, 0] - pixels[:, 0] - pair["flow"][rows, cols, 0]) == pytest.approx(20.0)
     dense = dis_flow(pair["a"], pair["b"], "medium")
-    flow, _, counts = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair, wrong)],
+    flow, _, counts, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair, wrong)],
                                   geometry(pair["depth_a"]), FlowConfig())
     assert counts["matched"] == 1
     assert object_error(flow, pair).max() < 1.0
@@ -139,7 +147,7 @@ def test_a_car_passing_the_camera_leaves_the_view_on_its_side():
     b = np.where(pair["mask_a"], texture(HEIGHT, WIDTH, seed=1), pair["b"])
     dense = np.zeros((HEIGHT, WIDTH, 2), dtype=np.float32)
     passing = ObjectHint(hint(pair).uv, np.array([0.0, 0.0, -13.0 / DT]), track=0)
-    flow, failed, counts = object_flow(pair["a"], b, dense, pair["mask_a"], [passing], geometry(pair["depth_a"]),
+    flow, failed, counts, _ = object_flow(pair["a"], b, dense, pair["mask_a"], [passing], geometry(pair["depth_a"]),
                                        FlowConfig())
     assert counts["radar"] == 1 and not failed.any()
     assert ((cols + flow[rows, cols, 0]) < -WIDTH).all()  # out of view: never lifted onto what b shows there
@@ -185,11 +193,11 @@ def test_an_object_the_radar_sees_well_takes_the_rigid_motion_and_its_rim_keeps_
     mask = cv2.dilate(pair["mask_a"].astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
     dense = np.where(pair["mask_a"][..., None], pair["flow"] + [3.0, 0.0], 0.0).astype(np.float32)
     favoured = {"radar_dense_margin": 10.0}
-    today, _, counts = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+    today, _, counts, _ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
                                    FlowConfig(**favoured))
     assert counts["dense"] == 1 and np.array_equal(today, dense)  # the premise
     trusted = FlowConfig(radar_rigid_min_returns=4, **favoured)  # hint() carries 4 returns
-    flow, failed, counts = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+    flow, failed, counts, _ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
                                        trusted)
     assert counts["dense"] == 0 and not failed.any()
     assert np.median(object_error(flow, pair)) < 0.5
@@ -233,14 +241,15 @@ def test_a_component_is_split_by_the_nearest_return_in_depth_not_in_the_image():
     assert split_by_returns(pixels, np.full(3, np.nan), K, [far, near]).tolist() == [0, 0, 0]
 
 
-def two_movers(depths: tuple[float, float] = (12.0, 20.0), returns: tuple[np.ndarray, np.ndarray] | None = None
-               ) -> dict:
+def two_movers(depths: tuple[float, float] = (12.0, 20.0), returns: tuple[np.ndarray, np.ndarray] | None = None,
+               shifts: tuple[float, float] = (40.0, -30.0), flat_second: bool = False) -> dict:
     """Two textured discs that overlap in frame a (the first, ``depths[0]`` m away, in front) and
-    part: the first moves 40 px right, the second 30 px left. One mask component in a. ``returns``:
-    each disc's radar returns in the image (default: three spread over it)."""
+    part: the first moves ``shifts[0]`` px right (40), the second ``shifts[1]`` (30 px left). One mask
+    component in a. ``returns``: each disc's radar returns in the image (default: three spread over it).
+    ``flat_second``: the second disc one uniform grey (a car's plain paint)."""
     background = texture(HEIGHT, WIDTH, seed=1)
     v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
-    centres, shifts, surfaces = [np.array([100.0, 60.0]), np.array([135.0, 55.0])], [40.0, -30.0], [7, 5]
+    centres, surfaces = [np.array([100.0, 60.0]), np.array([135.0, 55.0])], [7, 5]
     spread = np.array([[-8.0, 2.0], [0.0, -6.0], [6.0, 5.0]])
     returns = returns or (centres[0] + spread - [8.0, 0.0], centres[1] + spread)
     a, b = background.copy(), background.copy()
@@ -250,6 +259,8 @@ def two_movers(depths: tuple[float, float] = (12.0, 20.0), returns: tuple[np.nda
     hints = []
     for k in (1, 0):  # the far disc first, the near one over it
         surface, depth, shift = texture(HEIGHT, WIDTH, seed=surfaces[k]), depths[k], shifts[k]
+        if flat_second and k == 1:
+            surface = np.full_like(surface, 200)
         disc_a = (u - centres[k][0]) ** 2 + (v - centres[k][1]) ** 2 <= 20 ** 2
         disc_b = (u - centres[k][0] - shift) ** 2 + (v - centres[k][1]) ** 2 <= 20 ** 2
         a[disc_a] = surface[disc_a]
@@ -268,12 +279,56 @@ def test_two_movers_in_one_component_each_get_their_own_motion():
     dense = dis_flow(scene["a"], scene["b"], "medium")
     errors = {}
     for split in (0.0, 1.0):
-        flow, _, counts = object_flow(scene["a"], scene["b"], dense, scene["mask"], scene["hints"],
+        flow, _, counts, _ = object_flow(scene["a"], scene["b"], dense, scene["mask"], scene["hints"],
                                       geometry(scene["depth"]), FlowConfig(radar_split_velocity=split))
         error = np.linalg.norm(flow - scene["flow"], axis=2)
         errors[split] = [float(np.median(error[scene["owner"] == k])) for k in (0, 1)]
     assert max(errors[0.0]) > 10.0  # one motion for both: one of them is lost
     assert max(errors[1.0]) < 1.0
+
+
+def test_a_parked_car_in_a_movers_component_goes_to_the_static_returns():
+    # A mover 12 m away pulls out 40 px to the left from in front of a plain parked car 20 m away: one
+    # mask component that the mover's radar object claims; the parked car's static returns land on it.
+    scene = two_movers(shifts=(-40.0, 0.0), flat_second=True)
+    mover, parked = scene["hints"]
+    static = ObjectHint(parked.uv, np.zeros(3), STATIC_TRACK, parked.camera)
+    dense = dis_flow(scene["a"], scene["b"], "medium")
+    trusted = {"radar_rigid_min_returns": 3}  # the mover's three returns suffice for its rigid motion
+    runs = {n: object_flow(scene["a"], scene["b"], dense, scene["mask"], [mover, static], geometry(scene["depth"]),
+                           FlowConfig(radar_static_min_returns=n, **trusted)) for n in (0, 3, 4)}
+    on_parked, on_mover = scene["owner"] == 1, scene["owner"] == 0
+
+    def mover_error(flow: np.ndarray) -> float:
+        return float(np.median(np.linalg.norm(flow[on_mover] - scene["flow"][on_mover], axis=1)))
+
+    # The premise: one motion for the component, and the plain car's stillness wins it (the mover's
+    # motion is lost); neither images nor per-pixel checks can tell the plain paint's motion.
+    assert mover_error(runs[0].flow) > 30.0 and not runs[0].static.any()
+    split = runs[3]
+    assert split.static[on_parked].mean() > 0.95 and split.static[on_mover].mean() < 0.03
+    assert split.counts["static"] == 1
+    assert np.array_equal(split.flow[split.static], dense[split.static])  # the dense flow stays
+    assert mover_error(split.flow) < 1.0
+    assert not runs[4].static.any()  # three static returns are fewer than asked for
+    # In the pair's scene flow, the parked car's pixels are not lifted; the mover's are.
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
+    mover_b, parked_b = (u - 60) ** 2 + (v - 60) ** 2 <= 400, (u - 135) ** 2 + (v - 55) ** 2 <= 400
+    depth_b = np.where(mover_b, 12.0, np.where(parked_b, 20.0, 40.0))
+    mover_in_b = ObjectHint(mover.uv - [40.0, 0.0], mover.velocity, mover.track, lifted(mover.uv - [40.0, 0.0], 12.0))
+    rgb_a, rgb_b = (np.repeat(scene[k][..., None], 3, axis=2) for k in ("a", "b"))
+    inputs = {"image_i": rgb_a, "image_j": rgb_b, "forward": dense, "backward": dis_flow(rgb_b, rgb_a, "medium"),
+              "depth_i": scene["depth"], "depth_j": depth_b, "mask_i": scene["mask"], "mask_j": mover_b | parked_b,
+              "K": K, "world_to_cam_i": np.eye(4), "world_to_cam_j": np.eye(4), "hints_i": [mover, static],
+              "hints_j": [mover_in_b, static], "dt": DT}
+    on = {n: scene["owner"][tuple(pair_scene_flow(FlowConfig(radar_static_min_returns=n, **trusted),
+                                                  **inputs).pixels.astype(np.int64)[:, ::-1].T)] for n in (0, 3)}
+    assert (on[0] == 1).sum() > 100 and (on[0] == 0).sum() == 0  # the premise: the parked car, not the mover
+    assert (on[3] == 1).sum() == 0 and (on[3] == 0).sum() > 100
+    # A slow radar object (under radar_split_velocity) is not split from the static world.
+    slow = dataclasses.replace(mover, velocity=np.array([0.5, 0.0, 0.0]))
+    assert not object_flow(scene["a"], scene["b"], dense, scene["mask"], [slow, static], geometry(scene["depth"]),
+                           FlowConfig(radar_static_min_returns=3, **trusted)).static.any()
 
 
 def test_the_images_split_a_component_where_the_returns_cannot():
@@ -301,6 +356,36 @@ def test_the_flow_stage_uses_the_prepared_radar_objects(motion_scene, tmp_path):
     assert summary["radar_objects"] == "used"
     assert sum(summary["models"][m] for m in ("dense", "translation", "radar", "matched")) > 0
     assert sum(p["models"]["no_radar"] for p in summary["per_pair"]) == summary["models"]["no_radar"]
+
+
+def test_static_hint_holds_the_returns_neither_flagged_dynamic_nor_owned_by_an_object(motion_scene):
+    from types import SimpleNamespace
+
+    scan = motion_scene.load_radar(0)
+    n = len(scan.xyz)
+    in_front = len(project_returns(scan.xyz, motion_scene.radar_to_camera(0), motion_scene.camera.K)[0])
+    assert static_hint(motion_scene, 0, [], np.ones(n, dtype=bool)) is None
+    everything = static_hint(motion_scene, 0, [], np.zeros(n, dtype=bool))
+    assert everything.track == STATIC_TRACK and not everything.velocity.any() and len(everything.uv) == in_front
+    dynamic = np.zeros(n, dtype=bool)
+    dynamic[::2] = True
+    owned = SimpleNamespace(points=np.array([1, 3, n + 5]))  # a stale row beyond the scan is ignored
+    hint = static_hint(motion_scene, 0, [owned], dynamic)
+    rows = np.setdiff1d(np.arange(1, n, 2), [1, 3])
+    expected = project_returns(scan.xyz[rows], motion_scene.radar_to_camera(0), motion_scene.camera.K)[1]
+    assert np.allclose(hint.camera, expected)
+
+
+def test_the_flow_stage_splits_off_static_returns_only_when_asked(motion_scene, tmp_path):
+    from radar4dgs.radar.process import prepare_radar
+
+    prepare_radar(motion_scene, tmp_path / "radar")
+    oracle = {"depth_source": "oracle", "mask_source": "oracle"}
+    off = prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", **oracle))
+    on = prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", radar_static_min_returns=1, **oracle))
+    assert off["models"]["static"] == 0
+    # The oracle masks hold only movers: the static returns find at most a few rims to take.
+    assert sum(p["points"] for p in on["per_pair"]) >= 0.9 * sum(p["points"] for p in off["per_pair"])
 
 
 

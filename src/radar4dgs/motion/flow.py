@@ -46,12 +46,13 @@ from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene_files import FLOW_MASKS, prepared_depth_path
 from radar4dgs.motion.config import FlowConfig, flow_settings_at_width
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
-from radar4dgs.motion.object_hints import ObjectHint, frame_hints
+from radar4dgs.motion.object_hints import ObjectHint, frame_hints, static_hint
 from radar4dgs.motion.objects_flow import PairGeometry, fill_rejected_flow, object_flow, reliable_pixels
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
 from radar4dgs.motion.truth import gt_scene_flow, image_flow, visible_surface
 from radar4dgs.radar.objects import optional_radar_objects
+from radar4dgs.radar.process import load_radar_dynamics_flags
 
 
 def frame_pairs(scene, skip_test_frames: bool = True) -> list[tuple[int, int]]:
@@ -182,10 +183,12 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     failed = np.zeros(mask_i.shape, dtype=bool)
     models: dict[str, int] = {}
     if config.radar_guided:
-        forward, failed, models = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
-                                              PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt), config)
-        backward, _, _ = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
-                                     PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config)
+        forward, failed, models, static = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
+                                                      PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt),
+                                                      config)
+        backward = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
+                               PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config).flow
+        mask_i = mask_i & ~static  # the static returns' part of a mask component is not a mover's
     elif config.rigid_objects:
         rigid = (config.rigid_search, config.rigid_accept, config.rigid_min_pixels, config.rigid_wide_search)
         forward = rigid_object_flow(gray_i, gray_j, forward, mask_i, *rigid)
@@ -302,7 +305,9 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             flow_seconds += time.perf_counter() - started
             if objects is not None:
                 for k in (i, j):
-                    hints.setdefault(k, frame_hints(scene, k, objects[k]))
+                    if k not in hints:
+                        hints[k] = frame_hints(scene, k, objects[k]) + static_hints(scene, k, objects[k], config,
+                                                                                   prepared_dir)
             result = pair_scene_flow(
                 config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
@@ -340,6 +345,17 @@ def _radar_objects(scene, prepared_dir: str | Path | None, config: FlowConfig) -
         return None, "off (radar_guided=False)"
     objects, why = optional_radar_objects(prepared_dir, len(scene))
     return objects, "used" if objects is not None else f"unavailable: {why}"
+
+
+def static_hints(scene, index: int, objects, config: FlowConfig, prepared_dir: str | Path) -> list[ObjectHint]:
+    """[frame ``index``'s static radar returns as one hint] (:func:`.object_hints.static_hint`) when
+    ``FlowConfig.radar_static_min_returns`` asks for them and the radar stage flagged them, else []."""
+    if config.radar_static_min_returns <= 0:
+        return []
+    dynamic, _ = load_radar_dynamics_flags(Path(prepared_dir) / "radar", scene.frames[index].name,
+                                           len(scene.load_radar(index).xyz))
+    hint = static_hint(scene, index, objects, dynamic)
+    return [] if hint is None else [hint]
 
 
 def load_flow_pairs(prepared_dir: str | Path) -> list[dict[str, np.ndarray]]:

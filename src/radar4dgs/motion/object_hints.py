@@ -33,6 +33,10 @@ class ObjectHint:
     camera: np.ndarray | None = None
 
 
+# Track id of the hint that holds a frame's static radar returns (:func:`static_hint`), velocity zero.
+STATIC_TRACK = -2
+
+
 def project_returns(xyz_radar: np.ndarray, radar_to_camera: np.ndarray, K: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates (K', 2) and camera coordinates (K', 3) of the (K, 3) radar-frame points in
@@ -67,6 +71,46 @@ def frame_hints(scene, index: int, objects) -> list[ObjectHint]:
     return hints
 
 
+def static_hint(scene, index: int, objects, dynamic: np.ndarray) -> ObjectHint | None:
+    """Frame ``index``'s static radar returns as one hint of velocity zero (track :data:`STATIC_TRACK`):
+    the scan's rows the radar stage did not flag ``dynamic`` ((N,) bool) and no radar object
+    (``objects``, as :func:`frame_hints`) owns. None when none lies in front of the camera."""
+    scan = scene.load_radar(index)
+    static = ~np.asarray(dynamic, dtype=bool)
+    for obj in objects or []:
+        rows = obj.points[(obj.points >= 0) & (obj.points < len(static))]
+        static[rows] = False
+    uv, camera = project_returns(scan.xyz[static].astype(np.float64), scene.radar_to_camera(index), scene.camera.K)
+    return ObjectHint(uv, np.zeros(3), STATIC_TRACK, camera) if len(uv) else None
+
+
+def nearest_labels(labels: np.ndarray, radius: float) -> np.ndarray:
+    """(H, W) int: each pixel's component label, or that of the nearest labelled pixel within
+    ``radius`` px (0 beyond): where a radar return votes (elevation noise puts returns a few px off
+    the mask)."""
+    from scipy.ndimage import distance_transform_edt
+
+    distance, (near_v, near_u) = distance_transform_edt(labels == 0, return_indices=True)
+    return np.where(distance <= radius, labels[near_v, near_u], 0)
+
+
+def landing_labels(uv: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    """(K,) int the :func:`nearest_labels` label each of (K, 2) projected returns lands on (0: none,
+    or outside the image)."""
+    height, width = nearest.shape
+    u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
+    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    out = np.zeros(len(uv), dtype=np.int64)
+    out[inside] = nearest[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    return out
+
+
+def returns_on(hint: ObjectHint, labels: np.ndarray, label: int) -> ObjectHint:
+    """``hint`` with only its returns whose ``labels`` ((K,) from :func:`landing_labels`) is ``label``."""
+    keep = labels == label
+    return ObjectHint(hint.uv[keep], hint.velocity, hint.track, None if hint.camera is None else hint.camera[keep])
+
+
 def component_claims(labels: np.ndarray, hints: list[ObjectHint], radius: float,
                      min_returns: int) -> dict[int, list[ObjectHint]]:
     """The radar objects claiming each component of a labelled dynamic mask, most votes first.
@@ -82,19 +126,12 @@ def component_claims(labels: np.ndarray, hints: list[ObjectHint], radius: float,
     Returns:
         {component label: [hint, ...]}, each list ordered by votes, most first.
     """
-    from scipy.ndimage import distance_transform_edt
-
-    height, width = labels.shape
     if not hints or labels.max() == 0:
         return {}
-    # For every pixel the label of the nearest labelled pixel and its distance.
-    distance, (near_v, near_u) = distance_transform_edt(labels == 0, return_indices=True)
-    nearest = np.where(distance <= radius, labels[near_v, near_u], 0)
+    nearest = nearest_labels(labels, radius)
     claims: dict[int, list[tuple[int, int, ObjectHint]]] = {}
     for order, hint in enumerate(hints):
-        u, v = np.round(hint.uv[:, 0]), np.round(hint.uv[:, 1])
-        inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        votes = nearest[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        votes = landing_labels(hint.uv, nearest)
         votes = votes[votes > 0]
         if len(votes) == 0:
             continue
