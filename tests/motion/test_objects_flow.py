@@ -20,6 +20,7 @@ from radar4dgs.motion.object_hints import (
     STATIC_TRACK,
     ObjectHint,
     component_claims,
+    nearest_labels,
     predicted_targets,
     project_returns,
     split_by_returns,
@@ -217,11 +218,11 @@ def test_returns_vote_for_the_component_they_land_on_or_near():
     labels[5:15, 5:20], labels[20:35, 30:55] = 1, 2
     near = ObjectHint(np.array([[28.0, 25.0], [40.0, 30.0], [10.0, 10.0]]), np.zeros(3))  # 2 px left of 2
     far = ObjectHint(np.array([[2.0, 38.0], [58.0, 2.0]]), np.zeros(3))
-    assert component_claims(labels, [near, far], radius=3.0, min_returns=2) == {2: [near]}
-    assert component_claims(labels, [near], radius=3.0, min_returns=3) == {}
+    assert component_claims(nearest_labels(labels, 3.0), [near, far], min_returns=2) == {2: [near]}
+    assert component_claims(nearest_labels(labels, 3.0), [near], min_returns=3) == {}
     # Two objects on one component: both claim it, most votes first.
     more = ObjectHint(np.array([[35.0, 22.0], [45.0, 33.0], [50.0, 30.0]]), np.ones(3))
-    assert component_claims(labels, [near, more], radius=3.0, min_returns=2) == {2: [more, near]}
+    assert component_claims(nearest_labels(labels, 3.0), [near, more], min_returns=2) == {2: [more, near]}
 
 
 def lifted(uv: np.ndarray, depth: float) -> np.ndarray:
@@ -363,14 +364,15 @@ def test_static_hint_holds_the_returns_neither_flagged_dynamic_nor_owned_by_an_o
 
     scan = motion_scene.load_radar(0)
     n = len(scan.xyz)
-    in_front = len(project_returns(scan.xyz, motion_scene.radar_to_camera(0), motion_scene.camera.K)[0])
-    assert static_hint(motion_scene, 0, [], np.ones(n, dtype=bool)) is None
-    everything = static_hint(motion_scene, 0, [], np.zeros(n, dtype=bool))
+    seen = (scan.xyz, motion_scene.radar_to_camera(0), motion_scene.camera.K)
+    in_front = len(project_returns(*seen)[0])
+    assert static_hint(*seen, [], np.ones(n, dtype=bool)) is None
+    everything = static_hint(*seen, [], np.zeros(n, dtype=bool))
     assert everything.track == STATIC_TRACK and not everything.velocity.any() and len(everything.uv) == in_front
     dynamic = np.zeros(n, dtype=bool)
     dynamic[::2] = True
     owned = SimpleNamespace(points=np.array([1, 3, n + 5]))  # a stale row beyond the scan is ignored
-    hint = static_hint(motion_scene, 0, [owned], dynamic)
+    hint = static_hint(*seen, [owned], dynamic)
     rows = np.setdiff1d(np.arange(1, n, 2), [1, 3])
     expected = project_returns(scan.xyz[rows], motion_scene.radar_to_camera(0), motion_scene.camera.K)[1]
     assert np.allclose(hint.camera, expected)

@@ -352,9 +352,9 @@ def static_hints(scene, index: int, objects, config: FlowConfig, prepared_dir: s
     ``FlowConfig.radar_static_min_returns`` asks for them and the radar stage flagged them, else []."""
     if config.radar_static_min_returns <= 0:
         return []
-    dynamic, _ = load_radar_dynamics_flags(Path(prepared_dir) / "radar", scene.frames[index].name,
-                                           len(scene.load_radar(index).xyz))
-    hint = static_hint(scene, index, objects, dynamic)
+    xyz = scene.load_radar(index).xyz
+    dynamic, _ = load_radar_dynamics_flags(Path(prepared_dir) / "radar", scene.frames[index].name, len(xyz))
+    hint = static_hint(xyz, scene.radar_to_camera(index), scene.camera.K, objects, dynamic)
     return [] if hint is None else [hint]
 
 

@@ -71,16 +71,17 @@ def frame_hints(scene, index: int, objects) -> list[ObjectHint]:
     return hints
 
 
-def static_hint(scene, index: int, objects, dynamic: np.ndarray) -> ObjectHint | None:
-    """Frame ``index``'s static radar returns as one hint of velocity zero (track :data:`STATIC_TRACK`):
-    the scan's rows the radar stage did not flag ``dynamic`` ((N,) bool) and no radar object
-    (``objects``, as :func:`frame_hints`) owns. None when none lies in front of the camera."""
-    scan = scene.load_radar(index)
+def static_hint(xyz_radar: np.ndarray, radar_to_camera: np.ndarray, K: np.ndarray, objects,
+                dynamic: np.ndarray) -> ObjectHint | None:
+    """One scan's static radar returns as one hint of velocity zero (track :data:`STATIC_TRACK`):
+    the rows of the (N, 3) radar-frame ``xyz_radar`` that the radar stage did not flag ``dynamic``
+    ((N,) bool) and no radar object (``objects``, as :func:`frame_hints`) owns, seen through
+    ``radar_to_camera`` (4, 4) and ``K`` (3, 3). None when none lies in front of the camera."""
     static = ~np.asarray(dynamic, dtype=bool)
     for obj in objects or []:
         rows = obj.points[(obj.points >= 0) & (obj.points < len(static))]
         static[rows] = False
-    uv, camera = project_returns(scan.xyz[static].astype(np.float64), scene.radar_to_camera(index), scene.camera.K)
+    uv, camera = project_returns(np.asarray(xyz_radar, dtype=np.float64)[static], radar_to_camera, K)
     return ObjectHint(uv, np.zeros(3), STATIC_TRACK, camera) if len(uv) else None
 
 
@@ -111,24 +112,23 @@ def returns_on(hint: ObjectHint, labels: np.ndarray, label: int) -> ObjectHint:
     return ObjectHint(hint.uv[keep], hint.velocity, hint.track, None if hint.camera is None else hint.camera[keep])
 
 
-def component_claims(labels: np.ndarray, hints: list[ObjectHint], radius: float,
-                     min_returns: int) -> dict[int, list[ObjectHint]]:
+def component_claims(nearest: np.ndarray, hints: list[ObjectHint], min_returns: int) -> dict[int, list[ObjectHint]]:
     """The radar objects claiming each component of a labelled dynamic mask, most votes first.
 
     Each object votes with its returns for the component each lands on, or the nearest one within
-    ``radius`` px (radar elevation noise puts returns a few px off the mask); it claims the
-    component with most votes if they are at least ``min_returns``. Several objects can claim one
+    the radius of ``nearest`` (radar elevation noise puts returns a few px off the mask); it claims
+    the component with most votes if they are at least ``min_returns``. Several objects can claim one
     component: two movers that overlap in the image make one mask component.
 
     Args:
-        labels: (H, W) int component labels (0 = background), as ``cv2.connectedComponents``.
+        nearest: (H, W) int :func:`nearest_labels` of the component labels (0 = background), as
+            ``cv2.connectedComponents`` gives them.
         hints: the frame's objects.
     Returns:
         {component label: [hint, ...]}, each list ordered by votes, most first.
     """
-    if not hints or labels.max() == 0:
+    if not hints or nearest.max() == 0:
         return {}
-    nearest = nearest_labels(labels, radius)
     claims: dict[int, list[tuple[int, int, ObjectHint]]] = {}
     for order, hint in enumerate(hints):
         votes = landing_labels(hint.uv, nearest)

@@ -210,8 +210,10 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
     count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
     static_returns = next((hint for hint in hints if hint.track == STATIC_TRACK), None)
     hints = [hint for hint in hints if hint.track != STATIC_TRACK]
-    claims = component_claims(labels, hints, config.radar_association_radius, config.radar_min_returns)
-    static_labels = (landing_labels(static_returns.uv, nearest_labels(labels, config.radar_association_radius))
+    # Where returns vote, shared by the objects' claims and the static returns.
+    nearest = nearest_labels(labels, config.radar_association_radius) if hints and count > 1 else None
+    claims = {} if nearest is None else component_claims(nearest, hints, config.radar_min_returns)
+    static_labels = (landing_labels(static_returns.uv, nearest)
                      if static_returns is not None and config.radar_static_min_returns > 0 and claims else None)
     for label in range(1, count):
         component = labels == label
