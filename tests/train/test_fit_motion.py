@@ -16,6 +16,8 @@ from radar4dgs.train.config import FitConfig, MotionConfig
 from radar4dgs.train.fit_motion import (
     collect_radar_samples,
     collect_velocity_samples,
+    dynamic_pixels,
+    dynamic_points,
     load_field,
     run_fit,
     save_field,
@@ -25,6 +27,22 @@ from radar4dgs.train.fit_motion import (
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 ORACLE = {"depth_source": "oracle", "mask_source": "oracle"}  # gt depth and masks: the tests isolate one stage
+
+
+def test_dynamic_pixels_are_masked_pixels_with_depth_and_lift_to_their_depth():
+    depth = np.full((6, 8), 10.0)
+    depth[0, :] = np.nan
+    depth[1, :] = -1.0
+    mask = np.zeros((6, 8), bool)
+    mask[:3, 2:5] = True  # rows 0 and 1 have no usable depth: only row 2's three pixels count
+    rows, cols = dynamic_pixels(depth, mask, 0, np.random.default_rng(0))
+    assert sorted(zip(rows.tolist(), cols.tolist(), strict=True)) == [(2, 2), (2, 3), (2, 4)]
+    rows, cols = dynamic_pixels(depth, mask, 2, np.random.default_rng(0))
+    assert len(rows) == 2 and set(rows.tolist()) == {2}
+    K = np.array([[4.0, 0, 4.0], [0, 4.0, 3.0], [0, 0, 1]])
+    points = dynamic_points(depth, mask, K, np.eye(4), 0, np.random.default_rng(0))
+    np.testing.assert_allclose(np.sort(points[:, 0]), 10.0 * (np.array([2, 3, 4]) - 4.0) / 4.0)
+    np.testing.assert_allclose(points[:, 2], 10.0)
 
 
 def test_radar_returns_become_samples_with_their_own_doppler(motion_scene):

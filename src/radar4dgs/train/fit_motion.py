@@ -100,14 +100,22 @@ def flow_samples_from_pairs(pairs: list[dict[str, np.ndarray]], times: np.ndarra
     return FlowSamples(np.concatenate(x_i), np.concatenate(x_j), np.concatenate(t_i), np.concatenate(t_j))
 
 
-def dynamic_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_to_cam: np.ndarray,
-                   limit: int, rng: np.random.Generator) -> np.ndarray:
-    """(M, 3) world points of at most ``limit`` (0 = all) random dynamic pixels with finite depth."""
+def dynamic_pixels(depth: np.ndarray, mask: np.ndarray, limit: int,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) rows and (M,) columns of at most ``limit`` (0 = all) random pixels of the (H, W) ``mask``
+    with finite, positive (H, W) ``depth``."""
     valid = mask & np.isfinite(depth) & (depth > 0)
     rows, cols = np.nonzero(valid)
     if limit and len(rows) > limit:
         chosen = rng.choice(len(rows), size=limit, replace=False)
         rows, cols = rows[chosen], cols[chosen]
+    return rows, cols
+
+
+def dynamic_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, world_to_cam: np.ndarray,
+                   limit: int, rng: np.random.Generator) -> np.ndarray:
+    """(M, 3) world points of :func:`dynamic_pixels`."""
+    rows, cols = dynamic_pixels(depth, mask, limit, rng)
     pixels = np.stack([cols, rows], axis=1).astype(np.float64)
     return backproject(pixels, depth[rows, cols], K, world_to_cam)
 
