@@ -187,6 +187,28 @@ def test_velocity_term_reaches_the_trainer_only_with_a_weight(prepared):
     assert all(torch.equal(without[k], with_velocity[k]) for k in without)
 
 
+def test_radar_term_takes_doppler_only_from_returns_within_the_training_gate(prepared):
+    from radar4dgs.io.scene import normalized_times, read_scene
+    from radar4dgs.motion.association import load_radar_dynamics
+    from radar4dgs.train.data import load_motion_targets
+
+    scene_dir, prep = prepared
+    scene = read_scene(scene_dir)
+    targets = {gate: load_motion_targets(scene, prep, tiny_config(losses={"radar_gate": gate})).radar
+               for gate in (0.25, 2.0)}
+    assert 0 < len(targets[0.25]) < len(targets[2.0])
+    times = np.unique(targets[0.25].t_i)
+    returns = {t: load_radar_dynamics(scene, i, "prepared", prep)
+               for i, t in zip(scene.train_indices, normalized_times(scene)[scene.train_indices], strict=True)
+               if t in times}
+    for t, radar in returns.items():
+        rows = targets[0.25].t_i == t
+        nearest = np.linalg.norm(targets[0.25].x[rows, None] - radar.points[None], axis=2)
+        assert nearest.min(axis=1).max() <= 0.25
+        # Each sample's Doppler is its nearest return's.
+        np.testing.assert_allclose(targets[0.25].v_r[rows], radar.v_r_comp[nearest.argmin(axis=1)])
+
+
 def test_dynamic_depth_term_is_logged_only_where_the_movers_train(prepared, tmp_path):
     scene, prep = prepared
     state = train_run(scene, prep, tmp_path / "run", tiny_config(losses={"dynamic_depth_weight": 0.1}), progress=False)
