@@ -3,7 +3,7 @@ of a training frame the compensated radial velocity of its nearest dynamic radar
 association gate (``losses.radar_gate``). This scores those targets against the generator's truth,
 for one or more gates, on prepared scenes (no training):
 
-    python benchmarks/radar_targets.py [--seeds 214 215 216 217 218 219] [--traffic rush] [--fps 5]
+    python benchmarks/radar_targets.py [--seeds 214 215 216 217 218 219] [--traffic rush] [--fps 5 (0: the preset's)]
         [--gates 2.0 1.0] [--work W] [--scenes DIR ...] [--out JSON]
 
 For each sample, the residual a perfect field would leave, ``|true displacement . d - v_r dt|`` (m over
@@ -99,7 +99,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="*", default=[214, 215, 216, 217, 218, 219])
     parser.add_argument("--traffic", default="rush")
-    parser.add_argument("--fps", type=float, default=5.0)
+    parser.add_argument("--fps", type=float, default=5.0, help="frame rate of made scenes; 0 = the preset's")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--gates", type=float, nargs="+", default=[2.0, 1.0])
     parser.add_argument("--scenes", type=Path, nargs="*", default=[],
@@ -115,7 +115,7 @@ def main() -> None:
 
         folders = {}
         for seed in args.seeds:
-            scene, prepared, _ = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps)
+            scene, prepared, _ = prepare_scene(seed, args.preset, args.work, args.traffic, args.fps or None)
             folders[f"seed{seed}"] = (scene, prepared)
     results = {"what": "L_rad's targets against the truth (residual of a perfect field, m per training pair)",
                "command": " ".join(["python benchmarks/radar_targets.py", *sys.argv[1:]]),
