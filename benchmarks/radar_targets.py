@@ -89,8 +89,10 @@ def score_scene(scene_dir: Path, prepared: Path, gates: list[float], limit: int,
         for b, name in enumerate(BIN_NAMES):
             sel = scored & (bins_all == b)
             split[name] = {"samples": int(sel.sum()), "mean_m": float(r[sel].mean()) if sel.any() else None}
-        out["gates"][str(gate)] = {"samples": int(scored.sum()), "mean_m": float(r[scored].mean()),
-                                   "l1_share_static": float(r[scored & (bins_all == 0)].sum() / r[scored].sum()),
+        total, on_static = float(r[scored].sum()), float(r[scored & (bins_all == 0)].sum())
+        out["gates"][str(gate)] = {"samples": int(scored.sum()),
+                                   "mean_m": float(r[scored].mean()) if scored.any() else None,
+                                   "l1_share_static": on_static / total if total else None,
                                    "by_bin": split}
     return out
 
@@ -128,6 +130,9 @@ def main() -> None:
         for gate, g in entry["gates"].items():
             bins = "  ".join(f"{b} {v['mean_m']:.3f} ({v['samples']})" for b, v in g["by_bin"].items()
                              if v["mean_m"] is not None)
+            if g["mean_m"] is None:
+                print(f"  gate {gate} m: no sample within the gate")
+                continue
             print(f"  gate {gate} m: {g['samples']} samples, mean {g['mean_m']:.4f} m, "
                   f"static share {g['l1_share_static']:.2f} | {bins}", flush=True)
         atomic_write_json(args.out, results)
