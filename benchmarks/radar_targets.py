@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from radar4dgs.evaluate.motion_bins import motion_bin_index
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.image_motion import dynamic_pixel_motion_map, image_motion_edges
 from radar4dgs.io.preview import dynamic_motion_statistics
@@ -46,7 +47,7 @@ def pixel_bins(scene, index: int, rows: np.ndarray, cols: np.ndarray) -> np.ndar
     moving = scene.load_optional("gt/dynamic_mask", index)[rows, cols]
     motion = dynamic_pixel_motion_map(scene, index)[rows, cols]
     edges = image_motion_edges(scene.camera.width)
-    by_motion = 1 + np.clip(np.digitize(np.nan_to_num(motion, nan=0.0), edges[1:-1]), 0, len(edges) - 2)
+    by_motion = 1 + motion_bin_index(np.nan_to_num(motion, nan=0.0), edges)
     return np.where(~moving, 0, np.where(np.isfinite(motion), by_motion, len(BIN_NAMES) - 1))
 
 

@@ -25,6 +25,12 @@ DEFAULT_EDGES = IMAGE_MOTION_EDGES
 RENDERS_DIR = "renders"  # as evaluate.reconstruction writes them: renders/{recon,nvs}/<frame>.png
 
 
+def motion_bin_index(motion: np.ndarray, edges: Sequence[float]) -> np.ndarray:
+    """(N,) int bin of each of (N,) image motions (px per frame): b where edges[b] <= motion < edges[b + 1];
+    -1 below the first edge, ``len(edges) - 1`` at or beyond the last."""
+    return np.digitize(motion, np.asarray(edges, dtype=np.float64)) - 1
+
+
 def binned_squared_error(render: np.ndarray, gt: np.ndarray, motion: np.ndarray,
                          edges: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     """Per-bin sums of the squared error and pixel counts of one frame.
@@ -43,7 +49,7 @@ def binned_squared_error(render: np.ndarray, gt: np.ndarray, motion: np.ndarray,
         raise ValueError(f"render {render.shape}, gt {gt.shape} and motion {motion.shape} do not match")
     error = ((unit(render) - unit(gt)) ** 2).mean(axis=-1)
     counted = np.isfinite(motion)
-    index = np.digitize(motion[counted], np.asarray(edges, dtype=np.float64)) - 1
+    index = motion_bin_index(motion[counted], edges)
     bins = len(edges) - 1
     inside = (index >= 0) & (index < bins)
     sums = np.bincount(index[inside], weights=error[counted][inside], minlength=bins)
