@@ -16,6 +16,7 @@ from radar4dgs.metrics.losses import (
     log_depth_l1,
     radar_loss,
     radar_residual,
+    static_over_movers,
     velocity_loss,
     velocity_residual,
 )
@@ -194,3 +195,47 @@ def test_image_losses_against_closed_forms():
     p = torch.tensor([0.9, 0.2])
     expected = -(math.log(0.9) + math.log(0.8)) / 2
     assert float(binary_cross_entropy(p, torch.tensor([True, False]))) == pytest.approx(expected, rel=1e-6)
+
+
+def _one_gaussian(depth: float, sigma_px: float = 1.0, opacity: float = 0.4):
+    """One Gaussian projected at pixel (10, 10)'s centre, ``sigma_px`` wide, ``depth`` m away."""
+    means2d = torch.tensor([[10.5, 10.5]], dtype=torch.float64)
+    radii = torch.tensor([[3 * sigma_px, 3 * sigma_px]], dtype=torch.float64)
+    return means2d, radii, torch.tensor([depth], dtype=torch.float64), torch.tensor([opacity], dtype=torch.float64,
+                                                                                   requires_grad=True)
+
+
+def test_static_over_movers_is_opacity_times_the_covered_box_in_front_of_the_mover_and_nothing_else():
+    mask = torch.zeros(32, 40, dtype=torch.bool)
+    mask[5:16, 5:16] = True
+    surface = torch.full((32, 40), 10.0, dtype=torch.float64)
+    means2d, radii, depths, opacity = _one_gaussian(4.0)
+    value = static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.05)
+    # Every probe on the mask: the whole 2-sigma box, 4 px^2, at opacity 0.4, over 32 x 40 pixels.
+    assert float(value.detach()) == pytest.approx(0.4 * 4.0 / (32 * 40))
+    value.backward()
+    assert float(opacity.grad) == pytest.approx(4.0 / (32 * 40))
+    # Within the margin (9.6 m is not 5 % nearer than 10 m), behind it, culled, on an unknown or unmasked surface: 0.
+    for depth, rad, surf, m in ((9.6, 3.0, 10.0, mask), (12.0, 3.0, 10.0, mask), (4.0, 0.0, 10.0, mask),
+                                (4.0, 3.0, float("nan"), mask), (4.0, 3.0, 10.0, ~mask)):
+        means2d, radii, depths, opacity = _one_gaussian(depth)
+        zero = static_over_movers(means2d, radii * rad / 3.0, depths, opacity, m,
+                                  torch.full((32, 40), surf, dtype=torch.float64), margin=0.05)
+        assert float(zero) == 0.0
+    # 9.4 m is: the margin is relative.
+    means2d, radii, depths, opacity = _one_gaussian(9.4)
+    assert float(static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.05)) > 0
+
+
+def test_static_over_movers_counts_the_probes_on_the_mask_and_caps_a_large_gaussian_at_the_mask():
+    surface = torch.full((32, 40), 10.0, dtype=torch.float64)
+    # Only the centre column of pixel 10 and the +sigma probe (pixel 14) are masked: 2 of 5 probes.
+    mask = torch.zeros(32, 40, dtype=torch.bool)
+    mask[10, 10] = mask[10, 14] = True
+    means2d, radii, depths, opacity = _one_gaussian(4.0, sigma_px=4.0)
+    value = static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.0)
+    # The box is 8 x 8 = 64 px^2; 2 of 5 probes hit -> 25.6 px, capped at the mask's 2 pixels.
+    assert float(value) == pytest.approx(0.4 * 2.0 / (32 * 40))
+    mask[:, :] = True
+    value = static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.0)
+    assert float(value) == pytest.approx(0.4 * 64.0 / (32 * 40))

@@ -62,3 +62,33 @@ def test_its_gradient_pulls_a_dynamic_gaussian_drawn_too_deep_toward_the_camera_
         # Gradient descent moves z by -dz: toward TRUE_DEPTH from either side.
         assert sign * dz > 0
         assert model.static.params["means"].grad is None or float(model.static.params["means"].grad.abs().sum()) < 1e-3
+
+
+def road_over_car(static_depth: float) -> tuple[SceneModel, FrameTargets]:
+    """:func:`car_too_deep`'s car at its true depth, and a static Gaussian at ``static_depth`` on the
+    same axis, drawn over it where nearer."""
+    model, target = car_too_deep(TRUE_DEPTH)
+    kw = {"init_opacity": 0.5, "min_scale": 0.4, "max_scale": 0.4}
+    model.static = GaussianSet.from_points([[0.0, 0.0, static_depth]], [[0.3, 0.3, 0.3]], **kw)
+    return model, target
+
+
+def test_static_gaussians_drawn_over_a_mover_from_in_front_lose_opacity_and_the_mover_is_untouched():
+    config = preset(TrainConfig, "tiny", losses={"over_movers_weight": 0.2})
+    model, target = road_over_car(3.0)
+    render = model.render(target.view)
+    losses = image_losses(render, target, config, 3, ignore_dynamic=True)
+    assert float(losses["over_movers"].detach()) > 1e-3
+    assert loss_weights(config)["over_movers"] == 0.2
+    losses["over_movers"].backward()
+    # Gradient descent lowers the static Gaussian's opacity logit; the dynamic one takes nothing from the term.
+    assert float(model.static.params["opacity_logits"].grad[0]) > 0
+    grad = model.dynamic.params["opacity_logits"].grad
+    assert grad is None or float(grad.abs().sum()) == 0.0
+    # Behind the car, the term is 0; with the static set frozen (stage 2) or the weight 0 (the default), absent.
+    model, target = road_over_car(30.0)
+    assert float(image_losses(model.render(target.view), target, config, 3, ignore_dynamic=True)["over_movers"]) == 0.0
+    model, target = road_over_car(3.0)
+    frozen = model.render(target.view, detach_static=True)
+    assert "over_movers" not in image_losses(frozen, target, config, 2, ignore_dynamic=False)
+    assert "over_movers" not in image_losses(model.render(target.view), target, preset(TrainConfig, "tiny"), 3, True)

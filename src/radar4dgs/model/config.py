@@ -175,19 +175,19 @@ class LossConfig:
     object_weight: float = 0.05
     # lambda_sky: BCE of the rendered opacity against the sky mask (opacity 0 on sky).
     sky_weight: float = 0.05
-    # Weight of L_flow (m^2) on the field.
-    flow_weight: float = 1.0
-    # Weight of L_rad (m) on the field (as the standalone fit's radar_weight).
-    radar_weight: float = 0.5
+    # Weight of metrics.losses.static_over_movers: static Gaussians drawn over a mover from more than
+    # over_movers_margin (relative) in front of its prepared depth lose opacity; 0 = off.
+    over_movers_weight: float = 0.0
+    over_movers_margin: float = 0.05
+    flow_weight: float = 1.0  # weight of L_flow (m^2) on the field
+    radar_weight: float = 0.5  # weight of L_rad (m) on the field (as the standalone fit's radar_weight)
     # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off (0.1: -0.59 dB PSNR* on seed 214).
     velocity_weight: float = 0.0
-    # Flow pairs and radar points drawn per iteration for L_flow and L_rad (and L_vel).
-    motion_batch: int = 1024
+    motion_batch: int = 1024  # flow pairs and radar points drawn per iteration for L_flow, L_rad, L_vel
     # Association gate (m) of a dynamic point to its nearest dynamic radar point. 1 m, not the fit's 2 m:
     # at 2 m mask spill beside a mover took its Doppler (benchmarks/radar_targets.py, hard tuning seeds).
     radar_gate: float = 1.0
-    # Dynamic pixels per frame lifted as radar-supervised points.
-    radar_points_per_frame: int = 2000
+    radar_points_per_frame: int = 2000  # dynamic pixels per frame lifted as radar-supervised points
     # Also supervise the field at the dynamic radar returns (FitConfig.radar_returns_as_points, on
     # there). Off: on synthetic small seed 1 it took novel-view PSNR* from 22.63 to 20.17 dB; returns
     # flagged dynamic by mistake move the field where dynamic Gaussians are.

@@ -146,7 +146,8 @@ class SceneModel(nn.Module):
         Returns ``rgb`` (H, W, 3) composited with the sky, ``alpha`` (H, W), ``depth`` (H, W)
         expected depth (0 where alpha is 0), ``dynamic`` (H, W) accumulated weight of the dynamic
         Gaussians, ``sky`` (H, W, 3) the sky colour, and ``meta`` (the rasterizer's, with
-        ``means2d`` for densification) and ``n_static`` / ``n_dynamic``.
+        ``means2d`` for densification), ``n_static`` / ``n_dynamic`` and ``static_frozen``
+        (``detach_static``).
         """
         raster = raster or RasterConfig()
         g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static, cull=True)
@@ -168,7 +169,8 @@ class SceneModel(nn.Module):
         rgb = out[..., :3] + (1.0 - alpha)[..., None] * sky
         n_dynamic = int(g["dynamic"].sum())
         return {"rgb": rgb, "alpha": alpha, "depth": out[..., 4], "dynamic": out[..., 3], "sky": sky,
-                "meta": meta, "n_static": len(g["dynamic"]) - n_dynamic, "n_dynamic": n_dynamic}
+                "meta": meta, "n_static": len(g["dynamic"]) - n_dynamic, "n_dynamic": n_dynamic,
+                "static_frozen": detach_static}
 
     # ---- persistence
     def payload(self) -> dict[str, Any]:

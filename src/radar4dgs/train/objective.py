@@ -2,7 +2,8 @@
 
 ``(1 - l_r) L1 + l_r (1 - SSIM) + l_d L_invdepth + l_obj BCE(dyn, mask) [stage 3] + l_sky BCE(alpha,
 not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module docstring has the stages),
-plus, where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
+with ``losses.over_movers_weight`` the static Gaussians drawn over movers (``static_over_movers``), plus,
+where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
 and with ``losses.dynamic_depth_weight`` a log-depth L1 on the dynamic-mask pixels where the image trains them.
 """
 
@@ -21,6 +22,7 @@ from radar4dgs.metrics.losses import (
     inverse_depth_l1,
     log_depth_l1,
     radar_loss,
+    static_over_movers,
     velocity_loss,
 )
 from radar4dgs.model.config import TrainConfig
@@ -43,9 +45,25 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
         losses["dynamic_depth"] = log_depth_l1(render["depth"], render["alpha"], target.depth,
                                                target.dynamic & ~target.sky)
     losses["sky"] = binary_cross_entropy(render["alpha"], ~target.sky)
+    if config.losses.over_movers_weight > 0 and config.method == "ours":
+        over = over_movers(render, target, config.losses.over_movers_margin)
+        if over is not None:
+            losses["over_movers"] = over
     if stage == 3:
         losses["object"] = binary_cross_entropy(render["dynamic"], target.dynamic)
     return losses
+
+
+def over_movers(render: dict[str, Any], target: FrameTargets, margin: float) -> Tensor | None:
+    """:func:`static_over_movers` of the render's static Gaussians (the first ``n_static`` of its
+    rasterizer ``meta``) on the prepared mask and depth; None when they take no gradient (the static
+    set frozen, as in stage 2, or none drawn)."""
+    meta, n = render["meta"], render["n_static"]
+    opacities = meta["opacities"][0, :n]
+    if render.get("static_frozen", False) or not opacities.requires_grad or n == 0:
+        return None
+    return static_over_movers(meta["means2d"][0, :n], meta["radii"][0, :n], meta["depths"][0, :n], opacities,
+                              target.dynamic, target.depth, margin)
 
 
 def image_phase(config: TrainConfig, stage: int, step: int) -> tuple[bool, bool]:
@@ -95,7 +113,7 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     """The weight of each named loss term (the keys are :data:`radar4dgs.model.run.LOSS_TERMS`)."""
     c = config.losses
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
-            "dynamic_depth": c.dynamic_depth_weight,
+            "dynamic_depth": c.dynamic_depth_weight, "over_movers": c.over_movers_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
             "velocity": c.velocity_weight, "pose_smooth": config.poses.smooth_weight,
             "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight,
