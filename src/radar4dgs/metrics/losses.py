@@ -189,9 +189,10 @@ def static_over_movers(means2d: Tensor, radii: Tensor, depths: Tensor, opacities
     centre and +-1 sigma along u and v): the probes that hit, a fifth of the box each, at most the
     mask's pixel count.
 
-    Why: the image loss never scores the static set on moving pixels (TrainConfig.static_outside_masks),
-    so a road Gaussian just in front of a car can spread its footprint over the car's lower part and,
-    sorted first, hide it (issue 21: a quarter to a third of the composite on the lower third of the cars).
+    Why: stage 1 leaves the moving pixels out of the image loss and stage 2 freezes the static set, so
+    until stage 3 (never, with TrainConfig.static_outside_masks) nothing keeps a road Gaussian just in
+    front of a car from spreading its footprint over the car's lower part; sorted first, it hides the
+    car (issue 21: a fifth to a third of the composite on the cars' lower third in trained runs).
 
     means2d (N, 2) px, radii (N, 2) or (N,) px (0 = culled), depths (N,) camera z (m), opacities (N,)
     the rasterized ones (the only input differentiated), mask (H, W) bool, surface_depth (H, W) m (NaN
