@@ -349,11 +349,11 @@ class TrainConfig:
     method: Method = "ours"
     # Dynamic masks used for the static/dynamic split, the image losses and the object loss.
     mask_source: MaskSource = "predicted"
-    # Ours: initial life span (normalised time) of each dynamic Gaussian around the frame it was seen
-    # in, learned afterwards (PVG's temporal visibility; baselines.time_lr, lifespan_lr); 0 = visible
-    # at every time, as the paper. Each training frame's copy of a car then draws it only near its own
-    # frame, so the field's error over long gaps blurs nothing. 0.05 is about 2.5 frames of 50 either
-    # side (small seed 1, novel-view PSNR* 22.74 / 23.27 / 23.51 / 23.39 dB at 0.2 / 0.1 / 0.05 / 0.025).
+    # Ours: initial life span (normalised time) of each dynamic Gaussian around the frame it was seen in,
+    # learned afterwards (PVG's temporal visibility); 0 = visible at every time, as the paper. A car's copy
+    # then draws it only near its own frame, so the field's error over long gaps blurs nothing. 0.05 is about
+    # 2.5 frames of 50 either side (small seed 1, novel-view PSNR* 22.74 / 23.27 / 23.51 / 23.39 dB at 0.2 /
+    # 0.1 / 0.05 / 0.025).
     dynamic_lifespan: float = 0.05
     # Ours: rendered between training frames, each copy is fully visible within this fraction of the distance to
     # the nearest training frame (SceneModel.window_fraction; rush 5 Hz 214 / 217: PSNR* +0.21 / +0.36).
@@ -362,36 +362,34 @@ class TrainConfig:
     # paper), or its position at its life peak tau, drawn at D_t(D_tau^-1(x)) ("own-time"): the motion terms
     # fix only relative motion, so with "canonical" the image terms slide the dynamic set along the rays.
     dynamic_positions: Literal["canonical", "own-time"] = "canonical"
+    # Ours: every render draws a dynamic Gaussian ahead of the static ones up to this fraction of its depth
+    # nearer (model.scene_model.dynamic_drawn_in_front: road Gaussians in front of a car hid its lower part).
+    dynamic_in_front: float = 0.0
     # Ours: dynamic Gaussians the field moves faster than this (px per frame at 320 px width) start with a
     # life span shortened in proportion, down to one frame (model_init.speed_scaled_lifespans); 0 = off.
     dynamic_lifespan_reference_px: float = 0.0
     # Ours: at this fraction of the iterations (0 = never) the dynamic Gaussians are grouped into
-    # actors (radar4dgs.actors.discover, default ActorConfig) and each actor's Gaussians leave the
-    # deformation field for a rigid motion of its own: a yaw and a translation per training frame,
-    # linear in between (model.actor_motion), started from the field's motion and learned from the
-    # images at rigid_actors_lr (Adam; radians and metres). One smooth field cannot give a fast car
-    # and its slow neighbours opposite motions; a rigid body per actor can.
+    # actors (radar4dgs.actors.discover, default ActorConfig) and each actor's Gaussians leave the field for a
+    # rigid motion of its own: a yaw and a translation per training frame, linear in between (model.actor_motion),
+    # started from the field's motion and learned at rigid_actors_lr (Adam; radians and metres). One smooth field
+    # cannot give a fast car and its slow neighbours opposite motions; a rigid body per actor can.
     rigid_actors_at: float = 0.0
     rigid_actors_lr: float = 0.002
-    # Weight of the rigid actors' smoothness term (ActorMotion.acceleration: squared change of
-    # velocity from one key interval to the next, metres and radians): per-frame poses fitted to
-    # their own images alone drift off the path between them, where held-out frames are rendered.
+    # Weight of the rigid actors' smoothness term (ActorMotion.acceleration: squared change of velocity from one
+    # key interval to the next, m and rad): per-frame poses fitted to their own images alone drift off the path.
     rigid_actors_smoothness: float = 0.0
-    # Only actors whose centroid moves at least this far in the image from one frame to the next
-    # (90th percentile over their consecutive visible frames; a fraction of the image width) move
-    # rigidly; the field keeps the others. A lead car followed at the ego's speed hardly moves in
-    # the image, and the field holds it better than per-frame poses (calm synthetic seeds 1-3,
-    # whose actors move at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09 dB of novel-view
-    # PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
+    # Only actors whose centroid moves at least this far in the image from one frame to the next (90th
+    # percentile over their consecutive visible frames; a fraction of the image width) move rigidly; the field
+    # keeps the others. A lead car followed at the ego's speed hardly moves in the image, and the field holds it
+    # better than per-frame poses (calm seeds 1-3, actors at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09
+    # dB of novel-view PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).
     static_outside_masks: bool = False
-    # Seed of the initial subsampling, camera order, dropout and motion minibatches.
-    seed: int = 0
-    # Render and supervise at this fraction of the scene resolution (1 = full).
-    resolution_scale: float = 1.0
+    seed: int = 0  # of the initial subsampling, camera order, dropout and motion minibatches
+    resolution_scale: float = 1.0  # render and supervise at this fraction of the scene resolution (1 = full)
     # Coarse-to-fine: iterations before coarse_until (fraction of the run) render at
     # coarse_scale x resolution_scale. The early iterations mostly fix colours and opacities and do
     # not need the full image; on the CPU the saving is modest, since projecting and sorting the
@@ -472,6 +470,8 @@ class TrainConfig:
                              f"{self.dynamic_lifespan} and {self.held_out_window}")
         if self.dynamic_positions == "own-time" and self.dynamic_lifespan <= 0:
             raise ValueError("dynamic_positions='own-time' needs a life peak per Gaussian: dynamic_lifespan > 0")
+        if not 0.0 <= self.dynamic_in_front < 1.0:
+            raise ValueError(f"dynamic_in_front must be in [0, 1), got {self.dynamic_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.rigid_actors_smoothness < 0:

@@ -45,14 +45,17 @@ class SceneModel(nn.Module):
     visible within ``window_fraction`` x (distance from ``t`` to the nearest training frame) of its life
     peak (TrainConfig.held_out_window); at a training frame nothing changes. ``own_time_means``
     (TrainConfig.dynamic_positions "own-time"): the dynamic means are positions at each Gaussian's life
-    peak ``tau``, drawn at time t by the field's warp ``D_t(D_tau^-1(x))`` instead of ``D_t(x)``."""
+    peak ``tau``, drawn at time t by the field's warp ``D_t(D_tau^-1(x))`` instead of ``D_t(x)``.
+    ``dynamic_in_front`` (TrainConfig.dynamic_in_front): renders draw each dynamic Gaussian ahead of the
+    static ones up to that fraction of its depth nearer."""
 
     def __init__(self, static: GaussianSet, sky: SkyEnvironment, field: DeformationField | None = None,
                  dynamic: GaussianSet | None = None, offsets: OffsetField | None = None,
                  baseline: BaselineConfig | None = None, actor_motion: ActorMotion | None = None,
                  key_times: tuple[float, ...] | None = None, window_fraction: float = 0.0,
-                 own_time_means: bool = False):
+                 own_time_means: bool = False, dynamic_in_front: float = 0.0):
         super().__init__()
+        self.dynamic_in_front = dynamic_in_front
         self.own_time_means = own_time_means
         self.key_times = key_times
         self.window_fraction = window_fraction
@@ -157,18 +160,25 @@ class SceneModel(nn.Module):
             opacities = torch.where(keep, (opacities * dropout_scale).clamp(max=1.0), torch.zeros_like(opacities))
         features = torch.cat([g["colors"], g["dynamic"].to(dtype)[:, None]], dim=1)
         viewmat = torch.as_tensor(view.world_to_camera, dtype=dtype, device=device)[None]
+        in_front = self.dynamic_in_front > 0 and bool(g["dynamic"].any())
+        if in_front:
+            g, depth_fix = dynamic_drawn_in_front(g, viewmat[0], self.dynamic_in_front)
+            features = torch.cat([features, depth_fix[:, None]], dim=1)
         K = torch.as_tensor(rasterizer_intrinsics(view.K), dtype=dtype, device=device)[None]
         out, alpha, meta = rasterize(g["means"], g["quats"], g["scales"], opacities, features, viewmat, K,
                                      view.width, view.height, near_plane=NEAR_PLANE, far_plane=FAR_PLANE,
                                      render_mode="RGB+ED", **raster.kwargs())
         out, alpha = out[0], alpha[0, ..., 0]
+        depth = out[..., -1]
+        if in_front:  # back to the true depth: the dynamic Gaussians were drawn (1 - b) of it away
+            depth = depth + out[..., 4] / alpha.clamp(min=1e-10)
         if directions is None:
             directions = camera_ray_directions(view.K, view.world_to_camera, view.height, view.width,
                                                device=device, dtype=dtype)
         sky = self.sky(directions)
         rgb = out[..., :3] + (1.0 - alpha)[..., None] * sky
         n_dynamic = int(g["dynamic"].sum())
-        return {"rgb": rgb, "alpha": alpha, "depth": out[..., 4], "dynamic": out[..., 3], "sky": sky,
+        return {"rgb": rgb, "alpha": alpha, "depth": depth, "dynamic": out[..., 3], "sky": sky,
                 "meta": meta, "n_static": len(g["dynamic"]) - n_dynamic, "n_dynamic": n_dynamic,
                 "static_frozen": detach_static}
 
@@ -190,6 +200,7 @@ class SceneModel(nn.Module):
             "held_out_window": None if not self.key_times else {"key_times": list(self.key_times),
                                                                  "fraction": self.window_fraction},
             "own_time_means": self.own_time_means,
+            "dynamic_in_front": self.dynamic_in_front,
         }
 
     @classmethod
@@ -218,7 +229,28 @@ class SceneModel(nn.Module):
         window = payload.get("held_out_window") or {}  # absent from models saved before it existed
         return cls(gaussians(payload["static"]), sky, field, gaussians(payload.get("dynamic")), offsets, baseline,
                    actor_motion, tuple(window.get("key_times", ())) or None, float(window.get("fraction", 0.0)),
-                   bool(payload.get("own_time_means", False)))
+                   bool(payload.get("own_time_means", False)), float(payload.get("dynamic_in_front", 0.0)))
+
+
+def dynamic_drawn_in_front(g: dict[str, Tensor], world_to_camera: Tensor, fraction: float
+                           ) -> tuple[dict[str, Tensor], Tensor]:
+    """``g`` (:meth:`SceneModel.gaussians_at`) with each dynamic Gaussian moved toward the camera by
+    ``fraction`` of its distance and its scales shrunk by as much: the same image footprint, drawn before
+    any static Gaussian less than ``fraction`` of its depth nearer. Also (N,) the depth each Gaussian must
+    add to the blend for the true expected depth (``z' fraction / (1 - fraction)`` for the moved ones, z' their
+    new camera depth; 0 for the rest).
+
+    Why: a car's dynamic layer and the road Gaussians just in front of it are drawn in depth order, and
+    those Gaussians' footprints reach over the car's lower part (benchmarks/over_movers.py); a mover is
+    not hidden by what lies within a few metres of its own surface."""
+    moved = g["dynamic"][:, None]
+    rotation, translation = world_to_camera[:3, :3], world_to_camera[:3, 3]
+    centre = -rotation.T @ translation
+    means = torch.where(moved, centre + (1.0 - fraction) * (g["means"] - centre), g["means"])
+    scales = torch.where(moved, g["scales"] * (1.0 - fraction), g["scales"])
+    depth = means @ rotation[2] + translation[2]
+    fix = torch.where(g["dynamic"], depth * (fraction / (1.0 - fraction)), torch.zeros_like(depth))
+    return {**g, "means": means, "scales": scales}, fix
 
 
 def load_model(path: str | Path, device: torch.device | str = "cpu") -> SceneModel:

@@ -86,9 +86,7 @@ class TrainingError(RuntimeError):
     """A training run cannot go on (non-finite loss, inconsistent run folder)."""
 
 
-# --------------------------------------------------------------------------------------------
 # Pure pieces
-
 
 def step_generator(seed: int, step: int) -> torch.Generator:
     """The generator of every random draw of iteration ``step`` (stateless: resumable)."""
@@ -258,6 +256,7 @@ class Trainer:
         state.model.key_times = tuple(float(self.times[i]) for i in self.train_indices)
         state.model.window_fraction = self.config.held_out_window
         state.model.own_time_means = self.config.dynamic_positions == "own-time"
+        state.model.dynamic_in_front = self.config.dynamic_in_front
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
         self.log(f"stage 2: {len(dynamic)} dynamic Gaussians ({self.config.dynamic_positions} means)")
