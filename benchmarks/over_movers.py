@@ -7,9 +7,11 @@ by the pixel's place in its object (top, middle and bottom third of its rows), a
 category carries. Then an oracle bound, no training: each frame rendered again without the static Gaussians
 whose 2-D footprint (centre and +-1 sigma) lies on true moving pixels from more than ``--margin`` (relative) in
 front of the true depth there (what ``losses.over_movers_weight`` penalises in training, with the prepared
-mask and depth), and its PSNR* and PSNR.
+mask and depth), and its PSNR* and PSNR. With ``--in-front B ...``, also every frame's PSNR* and PSNR rendered
+with ``dynamic_in_front`` B (the dynamic layer drawn ahead of static Gaussians up to B of its depth nearer), with
+no retraining.
 
-    python benchmarks/over_movers.py RUN [RUN ...] [--margin 0.05] [--out JSON]
+    python benchmarks/over_movers.py RUN [RUN ...] [--margin 0.05] [--in-front 0.1 0.2] [--out JSON]
 """
 
 from __future__ import annotations
@@ -93,7 +95,24 @@ def frame_scores(run, index: int, times: np.ndarray, margin: float) -> dict:
     return out
 
 
-def run_summary(run_dir: Path, margin: float) -> dict:
+@torch.no_grad()
+def scores_in_front(run, fraction: float) -> dict:
+    """Mean PSNR* and PSNR per split with the run's model drawn at ``dynamic_in_front`` = ``fraction``."""
+    scene, times = run.scene, normalized_times(run.scene)
+    kept, run.model.dynamic_in_front = run.model.dynamic_in_front, fraction
+    frames: dict = {"recon": [], "nvs": []}
+    for index in range(len(scene)):
+        rgb = run.model.render(frame_view(scene, index, 1.0, times), run.config.raster)["rgb"].clamp(0, 1)
+        truth = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0)
+        moving = torch.as_tensor(scene.load_optional("gt/dynamic_mask", index) > 0)
+        frames["nvs" if index in set(scene.test_indices) else "recon"].append(
+            (psnr(rgb, truth, moving) if bool(moving.any()) else np.nan, psnr(rgb, truth)))
+    run.model.dynamic_in_front = kept
+    return {split: {"psnr_dyn": float(np.nanmean([r[0] for r in rows])), "psnr": float(np.mean([r[1] for r in rows]))}
+            for split, rows in frames.items()}
+
+
+def run_summary(run_dir: Path, margin: float, in_front: list[float]) -> dict:
     """Per split: each third's share of the moving pixels, its mean static weight, the share of its pixels
     covered (static weight > 0.1 over an opaque dynamic layer) and their share of the split's squared error on
     the moving pixels; the oracle's mean PSNR* and PSNR before and after."""
@@ -119,6 +138,7 @@ def run_summary(run_dir: Path, margin: float) -> dict:
             split_summary[f"oracle_{key}"] = [float(np.mean([r["oracle"][key][k] for r in rows])) for k in (0, 1)]
         split_summary["oracle_dropped_per_frame"] = float(np.mean([r["oracle"]["dropped"] for r in rows]))
         summary[split] = split_summary
+    summary["in_front"] = {str(b): scores_in_front(run, b) for b in [run.model.dynamic_in_front, *in_front]}
     return summary
 
 
@@ -126,12 +146,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", type=Path, nargs="+")
     parser.add_argument("--margin", type=float, default=0.05)
+    parser.add_argument("--in-front", type=float, nargs="*", default=[])
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/over-movers.json"))
     args = parser.parse_args()
     torch.set_num_threads(1)
     rows = json.loads(args.out.read_text())["rows"] if args.out.is_file() else []
     for run in args.runs:
-        row = {"run": str(run.resolve()), "margin": args.margin, **run_summary(run, args.margin)}
+        row = {"run": str(run.resolve()), "margin": args.margin, **run_summary(run, args.margin, args.in_front)}
         rows = [r for r in rows if (r["run"], r["margin"]) != (row["run"], row["margin"])] + [row]
         for split in ("recon", "nvs"):
             s = row[split]
@@ -140,6 +161,9 @@ def main() -> None:
             oracle = (f"oracle PSNR* {s['oracle_psnr_dyn'][0]:.2f} -> {s['oracle_psnr_dyn'][1]:.2f}  "
                       f"PSNR {s['oracle_psnr'][0]:.2f} -> {s['oracle_psnr'][1]:.2f}")
             print(f"{run} {split}: {thirds}  {oracle}", flush=True)
+        for b, s in row["in_front"].items():
+            print(f"{run} dynamic_in_front {b}: " + "  ".join(
+                f"{split} PSNR* {s[split]['psnr_dyn']:.2f} PSNR {s[split]['psnr']:.2f}" for split in s), flush=True)
     atomic_write_json(args.out, {"description": __doc__.split("\n\n")[0],
                                  "command": "python benchmarks/over_movers.py RUN ...", "rows": rows})
 

@@ -269,6 +269,7 @@ def test_own_time_dynamic_gaussians_start_at_their_frames_world_points(prepared,
     points = trainer._initial_points()
     own, canonical = states["own-time"].model, states["canonical"].model
     assert own.own_time_means and not canonical.own_time_means
+    assert own.dynamic_in_front == canonical.dynamic_in_front == TrainConfig().dynamic_in_front == 0.1
     world = torch.as_tensor(points["points"][points["dynamic"]], dtype=torch.float32)
     frame_times = trainer.times[points["frame"][points["dynamic"]]]
     torch.testing.assert_close(own.dynamic.params["means"].detach(), world)

@@ -362,9 +362,9 @@ class TrainConfig:
     # paper), or its position at its life peak tau, drawn at D_t(D_tau^-1(x)) ("own-time"): the motion terms
     # fix only relative motion, so with "canonical" the image terms slide the dynamic set along the rays.
     dynamic_positions: Literal["canonical", "own-time"] = "canonical"
-    # Ours: every render draws a dynamic Gaussian ahead of the static ones up to this fraction of its depth
-    # nearer (model.scene_model.dynamic_drawn_in_front: road Gaussians in front of a car hid its lower part).
-    dynamic_in_front: float = 0.0
+    # Ours: every render draws a dynamic Gaussian ahead of the static ones up to this fraction of its depth nearer
+    # (scene_model.dynamic_drawn_in_front: road Gaussians hid the cars' lower part); 0.1: PSNR* +0.34 dB (hard tuning).
+    dynamic_in_front: float = 0.1
     # Ours: dynamic Gaussians the field moves faster than this (px per frame at 320 px width) start with a
     # life span shortened in proportion, down to one frame (model_init.speed_scaled_lifespans); 0 = off.
     dynamic_lifespan_reference_px: float = 0.0
