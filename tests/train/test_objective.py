@@ -37,11 +37,17 @@ def car_too_deep(depth: float) -> tuple[SceneModel, FrameTargets]:
     return model, targets
 
 
+def rendered_terms(config: TrainConfig, model: SceneModel, target: FrameTargets, stage: int,
+                   ignore_dynamic: bool) -> tuple[dict, dict]:
+    """The render of ``target``'s view and its image terms."""
+    render = model.render(target.view)
+    return render, image_losses(render, target, config, stage, ignore_dynamic=ignore_dynamic)
+
+
 def test_the_term_is_the_mean_log_depth_error_on_the_mask_and_only_where_the_movers_train():
     config = preset(TrainConfig, "tiny", losses={"dynamic_depth_weight": 0.5})
     model, target = car_too_deep(6.0)
-    render = model.render(target.view)
-    losses = image_losses(render, target, config, 2, ignore_dynamic=False)
+    render, losses = rendered_terms(config, model, target, 2, ignore_dynamic=False)
     on = target.dynamic & (render["alpha"] > 0.05)
     expected = (render["depth"][on].log() - np.log(TRUE_DEPTH)).abs().mean()
     value = float(losses["dynamic_depth"].detach())
@@ -76,8 +82,7 @@ def road_over_car(static_depth: float) -> tuple[SceneModel, FrameTargets]:
 def test_static_gaussians_drawn_over_a_mover_from_in_front_lose_opacity_and_the_mover_is_untouched():
     config = preset(TrainConfig, "tiny", losses={"over_movers_weight": 0.2})
     model, target = road_over_car(3.0)
-    render = model.render(target.view)
-    losses = image_losses(render, target, config, 3, ignore_dynamic=True)
+    _, losses = rendered_terms(config, model, target, 3, ignore_dynamic=True)
     assert float(losses["over_movers"].detach()) > 1e-3
     assert loss_weights(config)["over_movers"] == 0.2
     losses["over_movers"].backward()
@@ -86,9 +91,8 @@ def test_static_gaussians_drawn_over_a_mover_from_in_front_lose_opacity_and_the_
     grad = model.dynamic.params["opacity_logits"].grad
     assert grad is None or float(grad.abs().sum()) == 0.0
     # Behind the car, the term is 0; with the static set frozen (stage 2) or the weight 0 (the default), absent.
-    model, target = road_over_car(30.0)
-    assert float(image_losses(model.render(target.view), target, config, 3, ignore_dynamic=True)["over_movers"]) == 0.0
+    assert float(rendered_terms(config, *road_over_car(30.0), 3, ignore_dynamic=True)[1]["over_movers"]) == 0.0
     model, target = road_over_car(3.0)
     frozen = model.render(target.view, detach_static=True)
     assert "over_movers" not in image_losses(frozen, target, config, 2, ignore_dynamic=False)
-    assert "over_movers" not in image_losses(model.render(target.view), target, preset(TrainConfig, "tiny"), 3, True)
+    assert "over_movers" not in rendered_terms(preset(TrainConfig, "tiny"), model, target, 3, ignore_dynamic=True)[1]
