@@ -177,3 +177,17 @@ def test_edits_apply_to_a_model_whose_actors_move_rigidly(setup):
         twice = run.model.gaussians_at(0.6, include_static=False)["means"][actor.gaussians]
     assert edited.actor_motion is motion
     assert torch.allclose(fast, twice, atol=1e-4)
+
+
+def test_an_edited_model_draws_its_dynamic_layer_in_front_as_its_model_does(setup, one_torch_thread):
+    run, actors, _, edit, render = setup
+    run.model.dynamic_in_front = 0.1
+    try:
+        # A shift by 0 s edits nothing but still wraps the model.
+        unchanged = edit(retime={actors[0].id: ("shift", 0.0)})
+        assert unchanged is not run.model and unchanged.dynamic_in_front == 0.1
+        edited, plain = render(unchanged, 3), render(run.model, 3)
+    finally:
+        run.model.dynamic_in_front = 0.0
+    torch.testing.assert_close(edited["rgb"], plain["rgb"])
+    torch.testing.assert_close(edited["depth"], plain["depth"])

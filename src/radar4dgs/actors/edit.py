@@ -36,7 +36,7 @@ class EditedSceneModel(SceneModel):
                  sky=None):
         super().__init__(model.static, model.sky if sky is None else sky, model.field, model.dynamic,
                          model.offsets, model.baseline, model.actor_motion, model.key_times, model.window_fraction,
-                         model.own_time_means)
+                         model.own_time_means, model.dynamic_in_front)
         self.removed = removed  # (K,) long tensor of dynamic indices, or None
         self.moved = moved  # [(indices, heading (F,), (lateral, longitudinal))]
         self.retimed = retimed  # {actor id: (indices, kind, value)}
