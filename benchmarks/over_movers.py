@@ -27,8 +27,8 @@ from scipy import ndimage
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.io.scene_files import read_mask_png
-from radar4dgs.metrics.image import psnr
-from radar4dgs.metrics.losses import static_over_movers
+from radar4dgs.metrics.image import psnr, summarize_frames
+from radar4dgs.metrics.losses import movers_covered
 from radar4dgs.model.run import load_run
 from radar4dgs.model.view import frame_view
 
@@ -49,15 +49,12 @@ def row_thirds(moving: np.ndarray) -> np.ndarray:
 
 
 def counted_by_the_term(meta: dict, n_static: int, moving: np.ndarray, depth: np.ndarray, margin: float) -> np.ndarray:
-    """(n_static,) bool: the static Gaussians :func:`static_over_movers` counts on ``moving`` (H, W) bool at
-    ``depth`` (H, W) m: those whose opacity gets a gradient from it."""
+    """(n_static,) bool: the static Gaussians ``losses.over_movers_weight`` counts on ``moving`` (H, W) bool at
+    ``depth`` (H, W) m: those that cover some of it."""
     means2d, radii, depths = meta["means2d"][0, :n_static], meta["radii"][0, :n_static], meta["depths"][0, :n_static]
-    with torch.enable_grad():
-        opacities = torch.ones(n_static, dtype=means2d.dtype, requires_grad=True)
-        value = static_over_movers(means2d.detach(), radii, depths.detach(), opacities, torch.as_tensor(moving),
-                                   torch.as_tensor(depth, dtype=means2d.dtype), margin)
-        (grad,) = torch.autograd.grad(value, opacities)
-    return (grad > 0).numpy()
+    covered = movers_covered(means2d, radii, depths, torch.as_tensor(moving),
+                             torch.as_tensor(depth, dtype=means2d.dtype), margin)
+    return (covered > 0).numpy()
 
 
 @torch.no_grad()
@@ -97,19 +94,20 @@ def frame_scores(run, index: int, times: np.ndarray, margin: float) -> dict:
 
 @torch.no_grad()
 def scores_in_front(run, fraction: float) -> dict:
-    """Mean PSNR* and PSNR per split with the run's model drawn at ``dynamic_in_front`` = ``fraction``."""
+    """Mean PSNR* and PSNR per split (as the evaluation averages them) with the run's model drawn at
+    ``dynamic_in_front`` = ``fraction``."""
     scene, times = run.scene, normalized_times(run.scene)
+    test = set(scene.test_indices)
     kept, run.model.dynamic_in_front = run.model.dynamic_in_front, fraction
     frames: dict = {"recon": [], "nvs": []}
     for index in range(len(scene)):
         rgb = run.model.render(frame_view(scene, index, 1.0, times), run.config.raster)["rgb"].clamp(0, 1)
         truth = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0)
         moving = torch.as_tensor(scene.load_optional("gt/dynamic_mask", index) > 0)
-        frames["nvs" if index in set(scene.test_indices) else "recon"].append(
-            (psnr(rgb, truth, moving) if bool(moving.any()) else np.nan, psnr(rgb, truth)))
+        frames["nvs" if index in test else "recon"].append(
+            {"psnr": psnr(rgb, truth), "psnr_dyn": psnr(rgb, truth, moving) if bool(moving.any()) else None})
     run.model.dynamic_in_front = kept
-    return {split: {"psnr_dyn": float(np.nanmean([r[0] for r in rows])), "psnr": float(np.mean([r[1] for r in rows]))}
-            for split, rows in frames.items()}
+    return {split: {key: summarize_frames(rows)[key] for key in ("psnr_dyn", "psnr")} for split, rows in frames.items()}
 
 
 def run_summary(run_dir: Path, margin: float, in_front: list[float]) -> dict:

@@ -181,35 +181,40 @@ def log_depth_l1(rendered: Tensor, alpha: Tensor, target: Tensor, valid: Tensor)
 _FOOTPRINT_PROBES = ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))
 
 
+def movers_covered(means2d: Tensor, radii: Tensor, depths: Tensor, mask: Tensor, surface_depth: Tensor,
+                   margin: float) -> Tensor:
+    """(N,) ``a_g``, not differentiated: an estimate of the pixels of each Gaussian's 2-sigma box that lie
+    on ``mask`` where the Gaussian is nearer than ``surface_depth * (1 - margin)``, from five probes (its
+    centre and +-1 sigma along u and v): the probes that hit, a fifth of the box each, at most the
+    mask's pixel count (a Gaussian larger than the mover covers at most the mover).
+
+    means2d (N, 2) px, radii (N, 2) or (N,) px (0 = culled), depths (N,) camera z (m), mask (H, W)
+    bool, surface_depth (H, W) m (NaN = unknown: never hit)."""
+    height, width = mask.shape
+    radii = radii if radii.dim() == 2 else radii[:, None].expand(-1, 2)
+    sigma = radii.to(means2d.dtype) / 3.0
+    centres, near = means2d.detach(), depths.detach()
+    drawn = radii.max(dim=1).values > 0
+    hits = torch.zeros(len(near), dtype=means2d.dtype, device=means2d.device)
+    for du, dv in _FOOTPRINT_PROBES:
+        u = torch.floor(centres[:, 0] + du * sigma[:, 0]).long()
+        v = torch.floor(centres[:, 1] + dv * sigma[:, 1]).long()
+        inside = drawn & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        u, v = u.clamp(0, width - 1), v.clamp(0, height - 1)
+        hit = inside & mask[v, u] & (near < surface_depth[v, u] * (1.0 - margin))  # NaN surface compares False
+        hits = hits + hit.to(hits.dtype)
+    return (hits / len(_FOOTPRINT_PROBES) * 4.0 * sigma[:, 0] * sigma[:, 1]).clamp(max=float(mask.sum()))
+
+
 def static_over_movers(means2d: Tensor, radii: Tensor, depths: Tensor, opacities: Tensor, mask: Tensor,
                        surface_depth: Tensor, margin: float) -> Tensor:
     """``sum_g opacity_g * a_g / (H W)``: the moving-object pixels that static Gaussians are drawn over
-    from in front. ``a_g`` (not differentiated) estimates the pixels of Gaussian g's 2-sigma box that
-    lie on ``mask`` where g is nearer than ``surface_depth * (1 - margin)``, from five probes (its
-    centre and +-1 sigma along u and v): the probes that hit, a fifth of the box each, at most the
-    mask's pixel count.
+    from in front, ``a_g`` from :func:`movers_covered` (same arguments); ``opacities`` (N,), the
+    rasterized ones, is the only input differentiated. Returns a scalar (0 with gradient when nothing is hit).
 
     Why: stage 1 leaves the moving pixels out of the image loss and stage 2 freezes the static set, so
     until stage 3 (never, with TrainConfig.static_outside_masks) nothing keeps a road Gaussian just in
     front of a car from spreading its footprint over the car's lower part; sorted first, it hides the
-    car (issue 21: a fifth to a third of the composite on the cars' lower third in trained runs).
-
-    means2d (N, 2) px, radii (N, 2) or (N,) px (0 = culled), depths (N,) camera z (m), opacities (N,)
-    the rasterized ones (the only input differentiated), mask (H, W) bool, surface_depth (H, W) m (NaN
-    = unknown: never hit). Returns a scalar (0 with gradient when nothing is hit)."""
+    car (issue 21: a fifth to a third of the composite on the cars' lower third in trained runs)."""
     height, width = mask.shape
-    radii = radii if radii.dim() == 2 else radii[:, None].expand(-1, 2)
-    sigma = radii.to(means2d.dtype) / 3.0
-    near = depths.detach()
-    hits = torch.zeros(len(near), dtype=means2d.dtype, device=means2d.device)
-    for du, dv in _FOOTPRINT_PROBES:
-        u = torch.floor(means2d[:, 0].detach() + du * sigma[:, 0]).long()
-        v = torch.floor(means2d[:, 1].detach() + dv * sigma[:, 1]).long()
-        inside = (radii.max(dim=1).values > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        u, v = u.clamp(0, width - 1), v.clamp(0, height - 1)
-        surface = surface_depth[v, u]
-        hit = inside & mask[v, u] & (near < surface * (1.0 - margin))  # NaN surface compares False
-        hits = hits + hit.to(hits.dtype)
-    # A Gaussian larger than the mover covers at most the mover.
-    covered = (hits / len(_FOOTPRINT_PROBES) * 4.0 * sigma[:, 0] * sigma[:, 1]).clamp(max=float(mask.sum()))
-    return (opacities * covered).sum() / (height * width)
+    return (opacities * movers_covered(means2d, radii, depths, mask, surface_depth, margin)).sum() / (height * width)
