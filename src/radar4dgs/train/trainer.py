@@ -86,7 +86,9 @@ class TrainingError(RuntimeError):
     """A training run cannot go on (non-finite loss, inconsistent run folder)."""
 
 
+# --------------------------------------------------------------------------------------------
 # Pure pieces
+
 
 def step_generator(seed: int, step: int) -> torch.Generator:
     """The generator of every random draw of iteration ``step`` (stateless: resumable)."""
