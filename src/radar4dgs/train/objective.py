@@ -60,7 +60,7 @@ def over_movers(render: dict[str, Any], target: FrameTargets, margin: float) -> 
     set frozen, as in stage 2, or none drawn)."""
     meta, n = render["meta"], render["n_static"]
     opacities = meta["opacities"][0, :n]
-    if render.get("static_frozen", False) or not opacities.requires_grad or n == 0:
+    if render["static_frozen"] or not opacities.requires_grad or n == 0:
         return None
     return static_over_movers(meta["means2d"][0, :n], meta["radii"][0, :n], meta["depths"][0, :n], opacities,
                               target.dynamic, target.depth, margin)
