@@ -26,3 +26,14 @@ def test_a_run_is_the_same_run_whatever_its_threads_and_older_configs_resume():
                                                   init={"dynamic_pixel_stride": 2}))
     assert not same_run_config({**saved, "mask_source": "gt"}, config)
     assert not same_run_config({**saved, "optim": {**saved["optim"], "iterations": 7}}, config)
+
+
+def test_a_config_from_before_the_dynamic_layer_was_drawn_ahead_resumes_as_it_ran():
+    config = variant_config("tiny", "ours")
+    saved = to_dict(config)
+    before = {k: v for k, v in saved.items() if k not in ("dynamic_in_front", "render_in_front")}
+    assert run_config_difference(before, config) == ["dynamic_in_front: 0.0 != 0.1", "render_in_front: 0.0 != 0.2"]
+    # Runs of 2026-12-03 drew at 0.1 in training and kept it for the finished model.
+    trained_ahead = {k: v for k, v in saved.items() if k != "render_in_front"}
+    assert run_config_difference(trained_ahead, config) == ["render_in_front: 0.1 != 0.2"]
+    assert same_run_config(trained_ahead, variant_config("tiny", "ours", render_in_front=0.1))

@@ -290,9 +290,13 @@ def test_resume_matches_an_unbroken_run(prepared, tmp_path):
     scene, prep = prepared
     config = tiny_config()
     unbroken = train_run(scene, prep, tmp_path / "a", config, progress=False)
-    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=10)  # "killed" at 10 (ckpt at 8, 10)
+    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=14)  # "killed" at 14 in stage 2 (ckpt at 8, 14)
     assert not (tmp_path / "b" / "model.pt").exists()
+    assert torch.load(tmp_path / "b" / "checkpoints" / "last.pt", weights_only=True)["model"]["dynamic_in_front"] == 0.1
     resumed = train_run(scene, prep, tmp_path / "b", config, resume=True, progress=False)
+    # Trained with the dynamic layer drawn 0.1 ahead, the finished model draws it 0.2 ahead.
+    assert resumed.model.dynamic_in_front == unbroken.model.dynamic_in_front == config.render_in_front == 0.2
+    assert load_model(tmp_path / "b" / "model.pt").dynamic_in_front == 0.2
     for name in ("static", "dynamic"):
         a, b = getattr(unbroken.model, name), getattr(resumed.model, name)
         for key in a.params:

@@ -362,9 +362,12 @@ class TrainConfig:
     # paper), or its position at its life peak tau, drawn at D_t(D_tau^-1(x)) ("own-time"): the motion terms
     # fix only relative motion, so with "canonical" the image terms slide the dynamic set along the rays.
     dynamic_positions: Literal["canonical", "own-time"] = "canonical"
-    # Ours: every render draws a dynamic Gaussian ahead of the static ones up to this fraction of its depth nearer
+    # Ours: training renders draw a dynamic Gaussian ahead of the static ones up to this fraction of its depth nearer
     # (scene_model.dynamic_drawn_in_front: road Gaussians hid the cars' lower part); 0.1: PSNR* +0.34 dB (hard tuning).
     dynamic_in_front: float = 0.1
+    # Ours: the finished model's dynamic_in_front (every render after training: evaluation, render, videos, edits);
+    # trained at 0.1, drawn at 0.2: held-out PSNR* +0.64 dB more on the hard tuning seeds, PSNR +0.02 (no retraining).
+    render_in_front: float = 0.2
     # Ours: dynamic Gaussians the field moves faster than this (px per frame at 320 px width) start with a
     # life span shortened in proportion, down to one frame (model_init.speed_scaled_lifespans); 0 = off.
     dynamic_lifespan_reference_px: float = 0.0
@@ -470,8 +473,9 @@ class TrainConfig:
                              f"{self.dynamic_lifespan} and {self.held_out_window}")
         if self.dynamic_positions == "own-time" and self.dynamic_lifespan <= 0:
             raise ValueError("dynamic_positions='own-time' needs a life peak per Gaussian: dynamic_lifespan > 0")
-        if not 0.0 <= self.dynamic_in_front < 1.0:
-            raise ValueError(f"dynamic_in_front must be in [0, 1), got {self.dynamic_in_front}")
+        if not (0.0 <= self.dynamic_in_front < 1.0 and 0.0 <= self.render_in_front < 1.0):
+            raise ValueError("dynamic_in_front and render_in_front must be in [0, 1), got "
+                             f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.rigid_actors_smoothness < 0:

@@ -15,14 +15,19 @@ def with_legacy_values(saved: dict) -> dict:
     """A saved TrainConfig dict with the fields it predates set to what a run of its time did,
     where that is not the field's default: no life span (``dynamic_lifespan`` 0), dynamic
     pixels on the background's grid (``init.dynamic_pixel_stride`` = ``init.pixel_stride``), no
-    pose or appearance refinement (``poses.refine`` / ``poses.appearance`` "off") and static
-    Gaussians trained on every pixel in stage 3 (``static_outside_masks`` False)."""
+    pose or appearance refinement (``poses.refine`` / ``poses.appearance`` "off"), static
+    Gaussians trained on every pixel in stage 3 (``static_outside_masks`` False), the dynamic layer in
+    depth order (``dynamic_in_front`` 0) and rendered after training as in it (``render_in_front``)."""
     out = dict(saved)
     out.setdefault("dynamic_lifespan", 0.0)
     # Runs from before the static layer was kept off the dynamic masks in stage 3 (issue 24).
     out.setdefault("static_outside_masks", False)
     # Runs from before pose refinement and exposure compensation (issue 27) had neither.
     out.setdefault("poses", {"refine": "off", "appearance": "off"})
+    # Runs from before the dynamic layer was drawn ahead drew it in depth order, and until render_in_front
+    # existed the finished model kept the training value.
+    out.setdefault("dynamic_in_front", 0.0)
+    out.setdefault("render_in_front", out["dynamic_in_front"])
     init = out.get("init")
     if isinstance(init, dict) and "dynamic_pixel_stride" not in init:
         out["init"] = {**init, "dynamic_pixel_stride": init.get("pixel_stride", GaussianInitConfig.pixel_stride)}

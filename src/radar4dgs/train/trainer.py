@@ -373,6 +373,8 @@ class Trainer:
             bar.close()
 
     def finish(self, state: RunState, seconds: float) -> None:
+        if state.model.dynamic is not None and self.config.method == "ours":
+            state.model.dynamic_in_front = self.config.render_in_front
         atomic_save_torch(self.out / MODEL_FILE, {"model": state.model.payload(), "step": state.step,
                                                   "config": to_dict(self.config), **self._refinement_payload(state)})
         if state.poses is not None or state.appearance is not None:
