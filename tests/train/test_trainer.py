@@ -290,7 +290,7 @@ def test_resume_matches_an_unbroken_run(prepared, tmp_path):
     scene, prep = prepared
     config = tiny_config()
     unbroken = train_run(scene, prep, tmp_path / "a", config, progress=False)
-    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=14)  # "killed" at 14 in stage 2 (ckpt at 8, 14)
+    train_run(scene, prep, tmp_path / "b", config, progress=False, stop_after=14)  # "killed" in stage 2 (ckpt 8, 14)
     assert not (tmp_path / "b" / "model.pt").exists()
     assert torch.load(tmp_path / "b" / "checkpoints" / "last.pt", weights_only=True)["model"]["dynamic_in_front"] == 0.1
     resumed = train_run(scene, prep, tmp_path / "b", config, resume=True, progress=False)
