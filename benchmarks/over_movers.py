@@ -8,8 +8,8 @@ category carries. Then an oracle bound, no training: each frame rendered again w
 whose 2-D footprint (centre and +-1 sigma) lies on true moving pixels from more than ``--margin`` (relative) in
 front of the true depth there (what ``losses.over_movers_weight`` penalises in training, with the prepared
 mask and depth), and its PSNR* and PSNR. With ``--in-front B ...``, also every frame's PSNR* and PSNR rendered
-with ``dynamic_in_front`` B (the dynamic layer drawn ahead of static Gaussians up to B of its depth nearer), with
-no retraining.
+with the dynamic layer drawn ahead of static Gaussians up to B of its depth nearer (as ``render_in_front`` B
+would draw the finished model), with no retraining.
 
     python benchmarks/over_movers.py RUN [RUN ...] [--margin 0.05] [--in-front 0.1 0.2] [--out JSON]
 """
