@@ -16,7 +16,8 @@ from radar4dgs.model.gaussians import GaussianSet
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
 from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
-from radar4dgs.train.trainer import Trainer, TrainingError, frame_order, psnr_of, step_generator, train_run
+from radar4dgs.train.determinism import step_generator
+from radar4dgs.train.trainer import Trainer, TrainingError, psnr_of, train_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -67,16 +68,6 @@ def test_half_pixel_conventions():
     np.testing.assert_allclose(half[:2, 2], [79.5, 44.5])
     np.testing.assert_allclose(np.diag(half)[:2], [50.0, 50.0])
     np.testing.assert_allclose(rasterizer_intrinsics(K)[:2, 2], [160.0, 90.0])
-
-
-def test_random_draws_are_stateless():
-    a = torch.rand(5, generator=step_generator(3, 17))
-    b = torch.rand(5, generator=step_generator(3, 17))
-    assert torch.equal(a, b)
-    assert not torch.equal(a, torch.rand(5, generator=step_generator(3, 18)))
-    order = frame_order(1, 4, 10)
-    assert sorted(order.tolist()) == list(range(10))
-    np.testing.assert_array_equal(order, frame_order(1, 4, 10))
 
 
 # ---- densification ------------------------------------------------------------------------

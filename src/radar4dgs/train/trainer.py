@@ -53,6 +53,7 @@ from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.radar.sync import prepared_synced_scene
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
+from radar4dgs.train.determinism import frame_order, step_generator
 from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.model_init import (
     dynamic_gaussians,
@@ -88,16 +89,6 @@ class TrainingError(RuntimeError):
 
 # --------------------------------------------------------------------------------------------
 # Pure pieces
-
-
-def step_generator(seed: int, step: int) -> torch.Generator:
-    """The generator of every random draw of iteration ``step`` (stateless: resumable)."""
-    return torch.Generator().manual_seed(int(seed) * 1_000_003 + int(step) + 1)
-
-
-def frame_order(seed: int, epoch: int, n: int) -> np.ndarray:
-    """(n,) permutation of the training frames for ``epoch``."""
-    return np.random.default_rng([int(seed), int(epoch)]).permutation(n)
 
 
 def check_finite(losses: dict[str, Tensor], step: int) -> None:
