@@ -32,3 +32,23 @@ def test_torch_backend_matches_gsplat(seed, mode):
     for k in PARAMS:
         cos = torch.nn.functional.cosine_similarity(g_g[k].flatten(), g_t[k].flatten(), dim=0)
         assert cos >= 0.999, (k, float(cos))
+
+
+@cuda
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("channels", [4, 5])
+def test_torch_backend_matches_gsplat_on_the_scene_models_channels(seed, channels):
+    """SceneModel.render draws colours, the dynamic weight and (with the dynamic layer drawn ahead) a
+    depth correction, plus gsplat's expected depth: 5 or 6 channels, which gsplat pads to a size it
+    compiles, with no background."""
+    pytest.importorskip("gsplat")
+    scene = _on_cuda(make_scene(seed, n=200, width=64, height=48))
+    extra = torch.rand(len(scene["colors"]), channels - 3, generator=torch.Generator().manual_seed(seed))
+    scene = {**scene, "colors": torch.cat([scene["colors"], extra.cuda()], dim=1), "backgrounds": None}
+    c_g, a_g, g_g, _ = grads_of(rasterize, scene, backend="gsplat", render_mode="RGB+ED")
+    c_t, a_t, g_t, _ = grads_of(rasterize, scene, backend="torch", render_mode="RGB+ED")
+    assert c_g.shape[-1] == channels + 1
+    assert (c_g - c_t).abs().max() <= 1e-4 and (a_g - a_t).abs().max() <= 1e-4
+    for k in PARAMS:
+        cos = torch.nn.functional.cosine_similarity(g_g[k].flatten(), g_t[k].flatten(), dim=0)
+        assert cos >= 0.999, (k, float(cos))
