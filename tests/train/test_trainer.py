@@ -10,6 +10,7 @@ import torch
 from _prepared import prepared_tiny_scene
 
 from radar4dgs.config import preset
+from radar4dgs.metrics.image import psnr
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import randomize_
 from radar4dgs.model.gaussians import GaussianSet
@@ -17,7 +18,7 @@ from radar4dgs.model.scene_model import load_model
 from radar4dgs.model.view import rasterizer_intrinsics, scale_intrinsics
 from radar4dgs.train.densify import GradientStats, append_rows, densify_and_prune, keep_rows, split_samples
 from radar4dgs.train.determinism import step_generator
-from radar4dgs.train.trainer import Trainer, TrainingError, psnr_of, train_run
+from radar4dgs.train.trainer import Trainer, TrainingError, train_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -144,7 +145,7 @@ def test_training_runs_all_stages_and_improves(prepared, tmp_path):
 
     def mean_psnr(model):
         with torch.no_grad():
-            return np.mean([psnr_of(model.render(t.view, directions=t.directions)["rgb"], t.image)
+            return np.mean([psnr(model.render(t.view, directions=t.directions)["rgb"].clamp(0, 1), t.image)
                             for t in trainer.targets])
 
     assert mean_psnr(state.model) > mean_psnr(initial) + 1.0

@@ -18,7 +18,6 @@ Adam moments, densification statistics) continues exactly as the unbroken run wo
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from radar4dgs.io.atomic import atomic_save_torch, atomic_write_json
 from radar4dgs.io.devices import resolve_device
 from radar4dgs.io.image_motion import IMAGE_MOTION_REFERENCE_WIDTH
 from radar4dgs.io.scene import normalized_times, read_scene
+from radar4dgs.metrics.image import psnr
 from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames
@@ -96,10 +96,6 @@ def check_finite(losses: dict[str, Tensor], step: int) -> None:
     if bad:
         raise TrainingError(f"non-finite loss at iteration {step}: {bad}; the last checkpoint is kept "
                             f"(resume with --resume after changing the config)")
-
-
-def psnr_of(rgb: Tensor, image: Tensor) -> float:
-    return -10 * math.log10(max(float(((rgb.detach().clamp(0, 1) - image) ** 2).mean()), 1e-10))
 
 
 # --------------------------------------------------------------------------------------------
@@ -438,7 +434,8 @@ class Trainer:
         if step % config.log_every == 0 or step == config.optim.iterations - 1:
             state.history.append({"step": step, "stage": stage, "frame": target.name, "width": target.view.width,
                                   "total": float(loss.detach()),
-                                  "psnr": psnr_of(render["rgb"], target.image), "num_gaussians": model.num_gaussians,
+                                  "psnr": psnr(render["rgb"].detach().clamp(0, 1), target.image),
+                                  "num_gaussians": model.num_gaussians,
                                   **{k: float(v.detach()) for k, v in losses.items()}})
             if self.train_log is not None:
                 self.train_log.step(state.history, *self._counts(state))
