@@ -3,8 +3,6 @@ and fits that beat a field that does not move."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 import torch
@@ -13,7 +11,7 @@ from radar4dgs.config import preset
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.motion.association import load_radar_dynamics
 from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.flow import frame_pairs, load_flow_pairs
+from radar4dgs.motion.flow import frame_pairs
 from radar4dgs.train.config import FitConfig, MotionConfig
 from radar4dgs.train.fit_motion import (
     collect_radar_samples,
@@ -65,31 +63,6 @@ def test_radar_returns_become_samples_with_their_own_doppler(motion_scene):
     assert np.array_equal(more.x[block], returns[0].points)
     assert np.array_equal(more.v_r[block], returns[0].v_r_comp)
     assert np.allclose(more.centre[block], returns[0].centre)
-
-
-def test_radar_samples_with_a_flow_pair_nearby_are_dropped(motion_scene, motion_prepared):
-    """``radar_flow_clearance``: L_rad keeps exactly the samples with no flow pair of their frame
-    starting within the clearance (brute-force distances as the reference), in the same order."""
-    flow = FlowConfig(**ORACLE)
-    times = normalized_times(motion_scene)
-    fit = FitConfig(radar_source="oracle", radar_returns_as_points=False)
-    every, _ = collect_radar_samples(motion_scene, motion_prepared, flow, fit, times)
-    gaps, stats = collect_radar_samples(motion_scene, motion_prepared, flow,
-                                        dataclasses.replace(fit, radar_flow_clearance=0.3), times)
-    starts: dict[float, list[np.ndarray]] = {}
-    for pair in load_flow_pairs(motion_prepared):
-        starts.setdefault(float(times[int(pair["index_i"])]), []).append(pair["points_i"])
-    near = np.zeros(len(every), bool)
-    for t, parts in starts.items():
-        rows, others = np.nonzero(every.t_i == t)[0], np.concatenate(parts)
-        if len(rows) == 0 or len(others) == 0:
-            continue
-        distance = np.linalg.norm(every.x[rows, None] - others[None], axis=-1).min(axis=1)
-        near[rows] = distance < 0.3
-    assert 0 < near.sum() < len(every)
-    assert stats["radar_dropped_near_flow"] == int(near.sum())
-    np.testing.assert_array_equal(gaps.x, every.x[~near])
-    np.testing.assert_array_equal(gaps.v_r, every.v_r[~near])
 
 
 def test_fit_beats_a_field_that_does_not_move(motion_scene, motion_prepared):

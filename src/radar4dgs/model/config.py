@@ -194,9 +194,6 @@ class LossConfig:
     # there). Off: on synthetic small seed 1 it took novel-view PSNR* from 22.63 to 20.17 dB; returns
     # flagged dynamic by mistake move the field where dynamic Gaussians are.
     radar_returns_as_points: bool = False
-    # L_rad only where the flow is missing: drop radar-supervised points with a flow pair of their frame
-    # starting this close (m; FitConfig.radar_flow_clearance); 0 = off.
-    radar_flow_clearance: float = 0.0
 
 
 @dataclass
@@ -406,9 +403,6 @@ class TrainConfig:
                              f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        if self.losses.radar_flow_clearance < 0:
-            raise ValueError(f"losses.radar_flow_clearance must be >= 0 (0 = off), got "
-                             f"{self.losses.radar_flow_clearance}")
         if self.rigid_actors_smoothness < 0:
             raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
         if self.rigid_actors_min_motion < 0:

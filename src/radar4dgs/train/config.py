@@ -37,10 +37,6 @@ class FitConfig:
     # has radar returns with an exact range. Synthetic small seeds 1-5, both terms, radar_weight
     # 0.5: dynamic EPE 0.176/0.171/0.174/0.222/0.125 m without, 0.168/0.158/0.160/0.191/0.118 m with.
     radar_returns_as_points: bool = True
-    # L_rad only where the flow is missing (issue 21, 3b): a radar-supervised pixel point is dropped when a
-    # flow pair of its frame starts within this distance (m), so the Doppler supervises the gaps of L_flow
-    # (fast movers whose flow failed) and not what L_flow already holds; 0 = off (every point).
-    radar_flow_clearance: float = 0.0
     # Velocity term L_vel (metrics.losses; issue 21, 3b): the returns of each radar object of
     # <prepared>/radar/objects.json (radar_source "oracle": the generator's objects and velocities)
     # must move by the object's tracked planar velocity times dt. It sees motion across the line of

@@ -206,8 +206,7 @@ def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTar
         flow = flow_samples_from_pairs(load_flow_pairs(prepared), times)
         stats["flow_pairs"] = len(flow)
     fit = FitConfig(radar_gate=config.losses.radar_gate, radar_points_per_frame=config.losses.radar_points_per_frame,
-                    radar_returns_as_points=config.losses.radar_returns_as_points,
-                    radar_flow_clearance=config.losses.radar_flow_clearance, seed=config.seed)
+                    radar_returns_as_points=config.losses.radar_returns_as_points, seed=config.seed)
     radar, radar_stats = collect_radar_samples(scene, prepared, FlowConfig(), fit, times)
     stats.update(radar_stats)
     velocity = None

@@ -46,9 +46,7 @@ from radar4dgs.train.config import FitConfig, MotionConfig
 from radar4dgs.train.object_points import (
     ObjectPoints,
     flow_near,
-    flow_start_points,
     frame_objects,
-    near_any,
     oracle_object_points,
     pixels_of_objects,
     prepared_object_points,
@@ -127,8 +125,7 @@ def collect_radar_samples(scene, prepared_dir: str | Path | None, flow_config: F
     """Radar-supervised points of every frame pair (:func:`frame_pairs`), and association stats."""
     rng = np.random.default_rng(fit.seed)
     columns: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "t_i", "t_j", "dt", "centre", "v_r")}
-    candidates = matched_total = radar_total = near_flow_total = 0
-    flow_points = flow_start_points(prepared_dir) if fit.radar_flow_clearance > 0 else {}
+    candidates = matched_total = radar_total = 0
     for i, j in frame_pairs(scene, flow_config.skip_test_frames):
         depth = load_depth(scene, i, flow_config.depth_source, prepared_dir)
         mask = load_mask(scene, i, flow_config.mask_source, prepared_dir)
@@ -138,10 +135,6 @@ def collect_radar_samples(scene, prepared_dir: str | Path | None, flow_config: F
         v_r = associate_velocities(points, radar, fit.radar_gate)
         candidates += len(points)
         matched_total += int(np.isfinite(v_r).sum())
-        if fit.radar_flow_clearance > 0:
-            near_flow = near_any(points, flow_points.get(i), fit.radar_flow_clearance) & np.isfinite(v_r)
-            near_flow_total += int(near_flow.sum())
-            v_r[near_flow] = np.nan
         radar_total += len(radar)
         if fit.radar_returns_as_points:
             points, v_r = np.concatenate([points, radar.points]), np.concatenate([v_r, radar.v_r_comp])
@@ -158,8 +151,7 @@ def collect_radar_samples(scene, prepared_dir: str | Path | None, flow_config: F
     stats = {"radar_candidates": candidates, "radar_matched": matched_total,
              "radar_dynamic_points": radar_total,
              "radar_returns_supervised": radar_total if fit.radar_returns_as_points else 0,
-             "radar_matched_fraction": matched_total / candidates if candidates else None,
-             "radar_dropped_near_flow": near_flow_total}
+             "radar_matched_fraction": matched_total / candidates if candidates else None}
     return RadarSamples(**joined), stats
 
 

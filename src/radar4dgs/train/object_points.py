@@ -2,18 +2,15 @@
 object's points in the world with its planar velocity and covariance, from the radar stage's
 ``<prepared>/radar/objects.json`` or, for an upper bound, from the synthetic generator's ground truth
 (``radar_source="oracle"``). Used by :func:`radar4dgs.train.fit_motion.collect_velocity_samples`.
-Also where the prepared flow pairs start, for the terms that stand in only where the flow is missing.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from radar4dgs.motion.association import associate_nearest
-from radar4dgs.motion.flow import load_flow_pairs
 from radar4dgs.radar.objects import RadarObject, optional_radar_objects
 from radar4dgs.train.config import FitConfig
 
@@ -91,25 +88,6 @@ def flow_near(returns: np.ndarray, flow_points: np.ndarray | None, gate: float) 
         return 0
     _, distance = associate_nearest(flow_points, returns, gate)
     return int(np.isfinite(distance).sum())
-
-
-def flow_start_points(prepared_dir) -> dict[int, np.ndarray]:
-    """Frame index -> (F, 3) start points of every stored flow pair starting at that frame
-    (``<prepared>/flow``; empty when there is no prepared flow)."""
-    if prepared_dir is None or not (Path(prepared_dir) / "flow").is_dir():
-        return {}
-    starts: dict[int, list[np.ndarray]] = {}
-    for pair in load_flow_pairs(prepared_dir):
-        starts.setdefault(int(pair["index_i"]), []).append(pair["points_i"])
-    return {index: np.concatenate(parts) for index, parts in starts.items()}
-
-
-def near_any(points: np.ndarray, others: np.ndarray | None, distance: float) -> np.ndarray:
-    """(N,) bool: which of (N, 3) ``points`` have one of (F, 3) ``others`` within ``distance`` (m)."""
-    if others is None or len(others) == 0:
-        return np.zeros(len(points), dtype=bool)
-    index, _ = associate_nearest(points, others, distance)
-    return index >= 0
 
 
 def synthetic_objects(scene) -> list[dict]:
