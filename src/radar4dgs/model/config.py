@@ -407,7 +407,7 @@ class TrainConfig:
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
         if self.losses.radar_smooth < 0:
-            raise ValueError(f"losses.radar_smooth must be >= 0 (0 = absolute residual), got {self.losses.radar_smooth}")
+            raise ValueError(f"losses.radar_smooth must be >= 0 (0: absolute), got {self.losses.radar_smooth}")
         if self.rigid_actors_smoothness < 0:
             raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
         if self.rigid_actors_min_motion < 0:
