@@ -86,6 +86,36 @@ def test_2d_flow_error_counts_only_pixels_that_stay_in_view(tmp_path, monkeypatc
         assert np.isclose(metrics["flow2d_epe_dynamic"], 3.0) and np.isclose(metrics["flow2d_epe_dynamic_p90"], 3.0)
 
 
+def test_2d_flow_error_is_split_by_what_the_checks_kept(tmp_path, monkeypatch):
+    """Stored flow exact on the pixels that passed both checks and 3 px off on the others: the kept
+    pixels score 0 px, the rejected 3 px, and the kept share is theirs among the scored pixels."""
+    import radar4dgs.motion.metrics as metrics_module
+    from _motion_scene import write_scene
+    from radar4dgs.motion.metrics import gt_flow_2d
+
+    scene = write_scene(tmp_path / "scene", frames=2, flow_y=-0.2)
+    gt2d, valid = gt_flow_2d(scene, 0)
+    scored = scene.load_optional("gt/dynamic_mask", 0) & valid
+    consistent = np.zeros(scored.shape, bool)
+    consistent[:, ::2] = True  # every other column passes forward-backward ...
+    reliable = np.ones(scored.shape, bool)
+    reliable[::3] = False  # ... and two rows in three pass the photometric check
+    kept = consistent & reliable
+    stored = np.where(kept[..., None], gt2d, gt2d + np.array([3.0, 0.0]))
+    pair = {"index_i": 0, "index_j": 1, "flow": stored, "consistent": consistent, "reliable": reliable,
+            "pixels": np.zeros((0, 2)), "points_i": np.zeros((0, 3)), "points_j": np.zeros((0, 3))}
+    monkeypatch.setattr(metrics_module, "load_flow_pairs", lambda _: [pair])
+    metrics = motion_frontend_metrics(scene, tmp_path)
+    assert metrics["flow2d_out_of_view"] == 0.0 and 0 < kept[scored].sum() < scored.sum()
+    assert metrics["flow2d_kept_share"] == pytest.approx(kept[scored].mean())
+    assert metrics["flow2d_epe_dynamic_kept"] == pytest.approx(0.0, abs=1e-9)
+    assert metrics["flow2d_epe_dynamic_rejected"] == pytest.approx(3.0)
+    assert metrics["flow2d_epe_dynamic"] == pytest.approx(3.0 * (1 - kept[scored].mean()))
+    # Pairs without the flags (older prepared folders) leave the split out.
+    del pair["consistent"]
+    assert motion_frontend_metrics(scene, tmp_path)["flow2d_kept_share"] is None
+
+
 def test_pixel_lengths_scale_with_the_scene_width_when_asked():
     config = FlowConfig(reference_width=320)
     wide = flow_settings_at_width(config, 640)

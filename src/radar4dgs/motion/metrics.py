@@ -43,6 +43,11 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
       motion statistics (``radar4dgs.io.image_motion``) leave them out.
     - ``flow2d_epe_dynamic_p50`` / ``_p90`` (px): median and 90th percentile of the same errors.
     - ``flow2d_out_of_view``: fraction of those gt-dynamic pixels left out for leaving the image.
+    - ``flow2d_kept_share``: fraction of the scored pixels whose flow passed the forward-backward and
+      photometric checks (``consistent & reliable`` in the stored pair), the flow that can be lifted;
+      ``flow2d_epe_dynamic_kept`` / ``_rejected`` (px): the mean error over those and over the others.
+      The flow of rejected pixels is stored but never lifted, so it never reaches training; None when
+      the stored pairs carry no check flags.
     - ``sceneflow_epe_dynamic`` (m): mean over the stored lifted pairs whose pixel is gt-dynamic
       of |(points_j - points_i) - gt/flow[pixel]|.
     - ``sceneflow_coverage``: fraction of gt-dynamic pixels (finite depth) that got a lifted pair.
@@ -60,7 +65,7 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
     pairs = [p for p in stored if int(p["index_j"]) == int(p["index_i"]) + 1]
     if max_pairs is not None:
         pairs = pairs[:max_pairs]
-    errors_2d, errors_3d = [], []
+    errors_2d, errors_3d, kept_2d = [], [], []
     dynamic_total, covered, out_of_view = 0, 0, 0
     for pair in pairs:
         i = int(pair["index_i"])
@@ -69,27 +74,48 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
         errors, left = in_view_flow_errors(pair["flow"], gt2d, dynamic)
         out_of_view += left
         errors_2d.append(errors)
+        if "consistent" in pair and "reliable" in pair:
+            kept_2d.append((pair["consistent"] & pair["reliable"])[landing_inside(gt2d, dynamic)])
         errors_3d.append(lifted_motion_errors(pair, scene.load_optional("gt/flow", i), dynamic))
         dynamic_total += int(dynamic.sum())
         covered += len(errors_3d[-1])
     e2 = np.concatenate(errors_2d) if errors_2d else np.zeros(0)
     e3 = np.concatenate(errors_3d) if errors_3d else np.zeros(0)
     p50, p90 = np.percentile(e2, [50, 90]) if len(e2) else (None, None)
+    kept = np.concatenate(kept_2d) if kept_2d and len(kept_2d) == len(errors_2d) else None
     return {"flow2d_epe_dynamic": float(e2.mean()) if len(e2) else None,
             "flow2d_epe_dynamic_p50": None if p50 is None else float(p50),
             "flow2d_epe_dynamic_p90": None if p90 is None else float(p90),
             "flow2d_out_of_view": out_of_view / dynamic_total if dynamic_total else None,
+            **kept_split(e2, kept),
             "sceneflow_epe_dynamic": float(e3.mean()) if len(e3) else None,
             "sceneflow_coverage": covered / dynamic_total if dynamic_total else None,
             "flow2d_pairs": len(pairs), **two_frame_scene_flow(scene, stored, max_pairs)}
 
 
-def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> tuple[np.ndarray, int]:
-    """(|flow - truth| (K,) px on the ``scored`` pixels whose true landing lies inside the image, how
-    many ``scored`` pixels land outside it). ``flow``, ``truth``: (H, W, 2); ``scored``: (H, W) bool."""
+def landing_inside(truth: np.ndarray, scored: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the ``scored`` (H, W) pixels whose true landing (pixel + (H, W, 2) ``truth``) lies
+    inside the image."""
     height, width = scored.shape
-    in_view = scored & lands_in_image(pixel_grid(height, width) + truth, width, height)
+    return scored & lands_in_image(pixel_grid(height, width) + truth, width, height)
+
+
+def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> tuple[np.ndarray, int]:
+    """(|flow - truth| (K,) px on the ``scored`` pixels whose true landing lies inside the image, in
+    row-major order, how many ``scored`` pixels land outside it). ``flow``, ``truth``: (H, W, 2);
+    ``scored``: (H, W) bool."""
+    in_view = landing_inside(truth, scored)
     return np.linalg.norm(flow[in_view] - truth[in_view], axis=1), int((scored & ~in_view).sum())
+
+
+def kept_split(errors: np.ndarray, kept: np.ndarray | None) -> dict[str, float | None]:
+    """``flow2d_kept_share``, ``flow2d_epe_dynamic_kept`` and ``flow2d_epe_dynamic_rejected`` of (K,)
+    errors and their (K,) bool check flags (None: no flags, every value None)."""
+    if kept is None or len(errors) == 0:
+        return {"flow2d_kept_share": None, "flow2d_epe_dynamic_kept": None, "flow2d_epe_dynamic_rejected": None}
+    return {"flow2d_kept_share": float(kept.mean()),
+            "flow2d_epe_dynamic_kept": float(errors[kept].mean()) if kept.any() else None,
+            "flow2d_epe_dynamic_rejected": float(errors[~kept].mean()) if (~kept).any() else None}
 
 
 def lifted_motion_errors(pair: dict, motion: np.ndarray, scored: np.ndarray) -> np.ndarray:
