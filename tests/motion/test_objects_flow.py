@@ -94,7 +94,7 @@ def test_dense_flow_fails_and_the_radar_guided_match_recovers_shift_and_zoom():
     assert np.median(object_error(dense, pair)) > 10.0  # the premise: DIS loses the object
     # The depth estimate is 10 % off, so the prediction misses by ~7 px and 2 % of scale: the
     # match has to fix it.
-    flow, failed, counts, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
+    flow, failed, counts, *_ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
                                        geometry(pair["depth_a"] * 1.1), FlowConfig())
     assert counts["matched"] == 1 and not failed.any()
     assert object_error(flow, pair).max() < 1.0
@@ -106,7 +106,7 @@ def test_dense_flow_fails_and_the_radar_guided_match_recovers_shift_and_zoom():
 def test_radar_guided_flow_recovers_large_shifts_and_zooms(shift, scale, depth_error):
     pair = object_pair(shift, scale)
     dense = dis_flow(pair["a"], pair["b"], "medium")
-    flow, failed, _, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
+    flow, failed, _, *_ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair)],
                                   geometry(pair["depth_a"] * depth_error), FlowConfig())
     assert not failed.any()
     assert object_error(flow, pair).max() < 1.0
@@ -121,7 +121,7 @@ def test_a_wrong_radar_prediction_is_corrected_by_the_match():
     predicted = predicted_targets(pixels, pair["depth_a"][rows, cols], K, np.eye(4), np.eye(4), wrong * DT)
     assert np.median(predicted[:, 0] - pixels[:, 0] - pair["flow"][rows, cols, 0]) == pytest.approx(20.0)
     dense = dis_flow(pair["a"], pair["b"], "medium")
-    flow, _, counts, _ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair, wrong)],
+    flow, _, counts, *_ = object_flow(pair["a"], pair["b"], dense, pair["mask_a"], [hint(pair, wrong)],
                                   geometry(pair["depth_a"]), FlowConfig())
     assert counts["matched"] == 1
     assert object_error(flow, pair).max() < 1.0
@@ -148,7 +148,7 @@ def test_a_car_passing_the_camera_leaves_the_view_on_its_side():
     b = np.where(pair["mask_a"], texture(HEIGHT, WIDTH, seed=1), pair["b"])
     dense = np.zeros((HEIGHT, WIDTH, 2), dtype=np.float32)
     passing = ObjectHint(hint(pair).uv, np.array([0.0, 0.0, -13.0 / DT]), track=0)
-    flow, failed, counts, _ = object_flow(pair["a"], b, dense, pair["mask_a"], [passing], geometry(pair["depth_a"]),
+    flow, failed, counts, *_ = object_flow(pair["a"], b, dense, pair["mask_a"], [passing], geometry(pair["depth_a"]),
                                        FlowConfig())
     assert counts["radar"] == 1 and not failed.any()
     assert ((cols + flow[rows, cols, 0]) < -WIDTH).all()  # out of view: never lifted onto what b shows there
@@ -170,6 +170,29 @@ def test_a_component_that_nothing_matches_is_dropped_not_lifted():
     dropped = pair_scene_flow(FlowConfig(**favoured), **inputs, **hints)
     assert not dropped.reliable[pair["mask_a"]].any()
     assert len(dropped.points_i) == 0
+
+
+def test_rejected_pixels_no_neighbour_can_fill_store_their_radar_prediction():
+    """Nothing matches the object (its texture swapped in b), so every pixel fails the checks, none is
+    lifted and no lifted neighbour can fill the stored flow: it keeps the radar prediction, and the
+    lifted pairs are those of the run without it (none)."""
+    pair = object_pair(shift=60.0, scale=1.2, swap_texture=True)
+    rows, cols = np.nonzero(pair["mask_a"])
+    pixels = np.stack([cols, rows], axis=1)
+    predicted = predicted_targets(pixels, pair["depth_a"][rows, cols], K, np.eye(4), np.eye(4),
+                                  pair["velocity"] * DT) - pixels
+    back = ObjectHint(np.array([[136.0, 60.0], [140.0, 55.0]]), pair["velocity"])
+    hints = {"hints_i": [hint(pair)], "hints_j": [back], "dt": DT}
+    inputs = pair_inputs(pair)
+    runs = {on: pair_scene_flow(FlowConfig(radar_dense_margin=1.2, fill_radar_prediction=on), **inputs, **hints)
+            for on in (False, True)}
+    assert len(runs[True].points_i) == len(runs[False].points_i) == 0
+    assert runs[True].filled[rows, cols].all() and not runs[False].filled[rows, cols].any()
+    assert runs[True].forward[rows, cols] == pytest.approx(predicted, abs=1e-3)
+    assert np.abs(runs[True].forward[rows, cols] - pair["flow"][rows, cols]).max() < 1.0  # the truth, here
+    assert np.abs(runs[False].forward[rows, cols] - pair["flow"][rows, cols]).max() > 1.0
+    outside = ~pair["mask_a"]
+    assert np.array_equal(runs[True].forward[outside], runs[False].forward[outside])
 
 
 def test_without_radar_objects_the_flow_is_todays():
@@ -194,11 +217,11 @@ def test_an_object_the_radar_sees_well_takes_the_rigid_motion_and_its_rim_keeps_
     mask = cv2.dilate(pair["mask_a"].astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
     dense = np.where(pair["mask_a"][..., None], pair["flow"] + [3.0, 0.0], 0.0).astype(np.float32)
     favoured = {"radar_dense_margin": 10.0}
-    today, _, counts, _ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+    today, _, counts, *_ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
                                    FlowConfig(**favoured))
     assert counts["dense"] == 1 and np.array_equal(today, dense)  # the premise
     trusted = FlowConfig(radar_rigid_min_returns=4, **favoured)  # hint() carries 4 returns
-    flow, failed, counts, _ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
+    flow, failed, counts, *_ = object_flow(pair["a"], pair["b"], dense, mask, [hint(pair)], geometry(pair["depth_a"]),
                                        trusted)
     assert counts["dense"] == 0 and not failed.any()
     assert np.median(object_error(flow, pair)) < 0.5
@@ -280,7 +303,7 @@ def test_two_movers_in_one_component_each_get_their_own_motion():
     dense = dis_flow(scene["a"], scene["b"], "medium")
     errors = {}
     for split in (0.0, 1.0):
-        flow, _, counts, _ = object_flow(scene["a"], scene["b"], dense, scene["mask"], scene["hints"],
+        flow, _, counts, *_ = object_flow(scene["a"], scene["b"], dense, scene["mask"], scene["hints"],
                                       geometry(scene["depth"]), FlowConfig(radar_split_velocity=split))
         error = np.linalg.norm(flow - scene["flow"], axis=2)
         errors[split] = [float(np.median(error[scene["owner"] == k])) for k in (0, 1)]

@@ -17,7 +17,8 @@ images never supervise the field), with keys
 
     ``reliable``   (H, W) bool        not dropped as a photometric failure (objects_flow.reliable_pixels)
     ``filled``     (H, W) bool        mask pixels the checks rejected whose ``flow`` is their nearest
-                                      lifted neighbour's (objects_flow.fill_rejected_flow)
+                                      lifted neighbour's (objects_flow.fill_rejected_flow) or, with
+                                      no neighbour, their radar object's prediction
 
 Each dynamic-mask component gets the motion that explains the two images best (both directions,
 before the consistency check): with ``FlowConfig.radar_guided`` and ``<prepared>/radar/objects.json``,
@@ -25,7 +26,8 @@ among its dense flow, its single translation, its radar object's predicted motio
 around that (:mod:`.objects_flow`); otherwise its translation where that beats the dense flow
 (``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
 frames. The stored ``flow`` of mask pixels the checks reject is then filled from the lifted pixels of
-their object (:func:`.objects_flow.fill_rejected_flow`); they stay unlifted. Where the object-depth
+their object (:func:`.objects_flow.fill_rejected_flow`), else (``FlowConfig.fill_radar_prediction``) set
+to their radar object's predicted motion; they stay unlifted. Where the object-depth
 stage rescaled a frame, frame j's end of each pair is lifted with the depth stage's map of j times
 frame i's object scale (``FlowConfig.one_scale_per_pair``): both ends on one scale. ``flow/config.json``
 holds the resolved :class:`FlowConfig` (pixel lengths scaled to the scene's width when
@@ -182,10 +184,11 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
     models: dict[str, int] = {}
+    predicted = None
     if config.radar_guided:
-        forward, failed, models, static = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
-                                                      PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt),
-                                                      config)
+        geometry = PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt)
+        forward, failed, models, static, predicted = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
+                                                                 geometry, config)
         backward = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
                                PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config).flow
         mask_i = mask_i & ~static  # the static returns' part of a mask component is not a mover's
@@ -209,8 +212,15 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         points_i, points_j, pixels = points_i[keep], points_j[keep], pixels[keep]
     lifted = np.zeros(mask_i.shape, dtype=bool)
     lifted[pixels[:, 1].astype(np.int64), pixels[:, 0].astype(np.int64)] = True
-    forward, filled = fill_rejected_flow(forward, mask_i, lifted, mask_i & ~(consistent & reliable),
-                                         config.fill_min_lifted, config.fill_max_distance)
+    rejected = mask_i & ~(consistent & reliable)
+    forward, filled = fill_rejected_flow(forward, mask_i, lifted, rejected, config.fill_min_lifted,
+                                         config.fill_max_distance)
+    if config.fill_radar_prediction and predicted is not None:
+        # Only the stored map changes (nothing rejected is lifted): where no lifted neighbour could fill
+        # a rejected pixel, its object's tracked velocity is a better guess than the motion that failed.
+        take = rejected & ~filled & np.isfinite(predicted).all(axis=-1)
+        forward[take] = predicted[take]
+        filled |= take
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models, filled)
 
 

@@ -65,12 +65,14 @@ class ObjectFlow(NamedTuple):
     components whose chosen motion explains the images no better than chance (to drop); ``counts``
     components per model ("no_radar": today's translation step, no radar object; "static": parts
     given to the static returns); ``static`` (H, W) bool mask pixels given to the static returns
-    (not movers: not to lift; they keep the dense flow)."""
+    (not movers: not to lift; they keep the dense flow); ``predicted`` (H, W, 2) float32 each object
+    pixel's radar-predicted motion, NaN where its object has none."""
 
     flow: np.ndarray
     failed: np.ndarray
     counts: dict[str, int]
     static: np.ndarray
+    predicted: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -206,6 +208,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
     out = np.array(flow, dtype=np.float32, copy=True)
     failed = np.zeros(mask.shape, dtype=bool)
     static = np.zeros(mask.shape, dtype=bool)
+    predicted = np.full(out.shape, np.nan, dtype=np.float32)
     counts = dict.fromkeys((*MODELS, "no_radar", "static"), 0)
     count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
     static_returns = next((hint for hint in hints if hint.track == STATIC_TRACK), None)
@@ -251,6 +254,8 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
                 part_mask[rows[part], cols[part]] = True
             candidates = candidate_targets(gray_a, gray_b, part_mask, pixels[part], dense[part], hint, geometry,
                                            config)
+            if "radar" in candidates:
+                predicted[rows[part], cols[part]] = candidates["radar"] - pixels[part]
             if 0 < config.radar_rigid_min_returns <= len(hint.uv) and "radar" in candidates:
                 model, motion = rigid_motion(gray_a, gray_b, part_mask, pixels[part], candidates, config)
             else:
@@ -264,7 +269,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
             out[rows[part], cols[part]] = motion
             failed[rows[part], cols[part]] = no_better_than_chance(gray_a, gray_b, pixels[part],
                                                                    pixels[part] + motion, config)
-    return ObjectFlow(out, failed, counts, static)
+    return ObjectFlow(out, failed, counts, static, predicted)
 
 
 def rigid_motion(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
