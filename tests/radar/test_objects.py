@@ -159,6 +159,31 @@ def test_detect_objects_in_a_scan_with_a_mounted_radar():
                                + radar_to_world[:3, 3], atol=1e-9)
 
 
+def test_two_movers_in_one_cluster_come_apart_with_split_outliers():
+    """A lead car driving away and an oncoming car passing 1.2 m beside it (one radius-graph cluster):
+    the cluster's fit keeps one and drops the other's returns as outliers; with ``split_outliers``
+    they are fitted again into a second object with its own exact velocity, and no further object
+    comes from what is left."""
+    rng = np.random.default_rng(3)
+    cars = [(np.array([15.0, -1.5]), np.array([6.0, 0.5]), 40), (np.array([16.0, 1.5]), np.array([-8.0, 0.0]), 30)]
+    xyz, comp, owner = [], [], []
+    for k, (centre, v, n) in enumerate(cars):
+        p = car_returns(rng, centre, n)
+        xyz.append(p)
+        comp.append(planar_system(p, v)[1])
+        owner.append(np.full(n, k))
+    xyz, comp, owner = (np.concatenate(x) for x in (xyz, comp, owner))
+    assert len(np.unique(cluster_points(xyz, RadarObjectConfig().radius, RadarObjectConfig().z_scale))) == 1
+    dynamic = np.ones(len(xyz), bool)
+    one = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(), seed=0)
+    assert len(one) == 1 and len(one[0].outliers) == 30
+    both = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_outliers=True), seed=0)
+    assert len(both) == 2
+    for det, (_, v, n) in zip(both, cars, strict=True):
+        assert len(det.points) == n and len(set(owner[det.points])) == 1
+        np.testing.assert_allclose(det.fit.velocity, v, atol=1e-6)
+
+
 @settings(max_examples=40, deadline=None)
 @given(v=st.tuples(st.floats(-25, 25), st.floats(-25, 25)), v_s=st.tuples(st.floats(-30, 30), st.floats(-5, 5)),
        noise_deg=st.floats(0.05, 1.0), seed=st.integers(0, 2 ** 16))

@@ -272,7 +272,8 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
             angle_std: its (azimuth, elevation) noise std (rad); with both, each fit is corrected for the
             directions' noise (:func:`corrected_least_squares`).
     Returns:
-        Detections with at least ``min_returns`` inlier returns, in order of their first row.
+        Detections with at least ``min_returns`` inlier returns, in order of their cluster's first row (with
+        ``split_outliers``, the further objects of a cluster after its first).
     """
     config = config or RadarObjectConfig()
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -292,14 +293,18 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
     detections = []
     for label in np.unique(labels):
         members = np.flatnonzero(labels == label)
-        if len(members) < max(config.min_returns, 1):
-            continue
-        fit = fit_planar_velocity(d_world[members, :2], v_r_comp[rows[members]], config, rng,
-                                  None if jacobians is None else jacobians[:, members], velocity)
-        if fit.inliers.sum() < max(config.min_returns, 1):
-            continue
-        detections.append(Detection(p_world[members[fit.inliers]].mean(axis=0), fit,
-                                    rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy()))
+        needed = max(config.min_returns, 1)
+        while len(members) >= needed:
+            fit = fit_planar_velocity(d_world[members, :2], v_r_comp[rows[members]], config, rng,
+                                      None if jacobians is None else jacobians[:, members], velocity)
+            if fit.inliers.sum() < needed:
+                break
+            detections.append(Detection(p_world[members[fit.inliers]].mean(axis=0), fit,
+                                        rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy()))
+            if not config.split_outliers or fit.inliers.all():
+                break
+            # Any two returns fit some planar velocity exactly, so a further object needs a third that agrees.
+            members, needed = members[~fit.inliers], max(config.min_returns, 3)
     return detections
 
 
