@@ -23,7 +23,7 @@ class RadarObjectConfig:
     # Fit a cluster's outliers again (sequential RANSAC) and report each further fit with min_returns inliers as
     # an object of its own: two movers passing within ``radius`` of each other (an oncoming car beside the lead
     # car) join one cluster, and the second one's returns were lost as the first one's outliers.
-    split_outliers: bool = False
+    split_outliers: bool = True
     # A return fits an object velocity v when |v_r_comp - d . v| is below this (m/s): 3 sigma of the
     # Doppler noise (0.1 m/s) plus azimuth noise times the speed across the line of sight
     # (0.005 rad x 30 m/s = 0.15 m/s).
