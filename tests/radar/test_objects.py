@@ -184,6 +184,24 @@ def test_two_movers_in_one_cluster_come_apart_with_split_outliers():
         np.testing.assert_allclose(det.fit.velocity, v, atol=1e-6)
 
 
+def test_three_chance_outliers_of_one_car_need_split_min_returns_to_stay_outliers():
+    """A car whose fit leaves three outlier returns that happen to agree on another velocity: a further object
+    needs ``split_min_returns`` inliers, so at 3 they become a spurious second object on top of the car and at
+    4 they stay the car's outliers."""
+    rng = np.random.default_rng(5)
+    body = car_returns(rng, np.array([20.0, 0.0]), 40)
+    odd = car_returns(rng, np.array([20.0, 0.0]), 3)
+    xyz = np.concatenate([body, odd])
+    comp = np.concatenate([planar_system(body, [8.0, 0.0])[1], planar_system(odd, [-5.0, 9.0])[1]])
+    dynamic = np.ones(len(xyz), bool)
+    loose = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_min_returns=3), seed=0)
+    strict = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_min_returns=4), seed=0)
+    assert len(loose) == 2 and len(loose[1].points) == 3
+    assert np.linalg.norm(loose[1].centroid[:2] - loose[0].centroid[:2]) < 2.5  # on the same car
+    assert len(strict) == 1 and len(strict[0].outliers) == 3
+    np.testing.assert_allclose(strict[0].fit.velocity, [8.0, 0.0], atol=1e-6)
+
+
 @settings(max_examples=40, deadline=None)
 @given(v=st.tuples(st.floats(-25, 25), st.floats(-25, 25)), v_s=st.tuples(st.floats(-30, 30), st.floats(-5, 5)),
        noise_deg=st.floats(0.05, 1.0), seed=st.integers(0, 2 ** 16))

@@ -24,6 +24,10 @@ class RadarObjectConfig:
     # an object of its own: two movers passing within ``radius`` of each other (an oncoming car beside the lead
     # car) join one cluster, and the second one's returns were lost as the first one's outliers.
     split_outliers: bool = True
+    # Inliers a further object of a cluster needs. Two returns fit some velocity exactly and three out of a car's
+    # scattered outliers often agree by chance (hard tuning seeds 228 / 229: three such 3-return objects, 11-27 m/s
+    # off, within 2 m of the car; every true second mover had 4 or more).
+    split_min_returns: int = 3
     # A return fits an object velocity v when |v_r_comp - d . v| is below this (m/s): 3 sigma of the
     # Doppler noise (0.1 m/s) plus azimuth noise times the speed across the line of sight
     # (0.005 rad x 30 m/s = 0.15 m/s).
