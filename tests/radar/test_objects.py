@@ -175,9 +175,9 @@ def test_two_movers_in_one_cluster_come_apart_with_split_outliers():
     xyz, comp, owner = (np.concatenate(x) for x in (xyz, comp, owner))
     assert len(np.unique(cluster_points(xyz, RadarObjectConfig().radius, RadarObjectConfig().z_scale))) == 1
     dynamic = np.ones(len(xyz), bool)
-    one = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_outliers=False), seed=0)
+    one = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(), seed=0)
     assert len(one) == 1 and len(one[0].outliers) == 30
-    both = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(), seed=0)
+    both = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_outliers=True), seed=0)
     assert len(both) == 2
     for det, (_, v, n) in zip(both, cars, strict=True):
         assert len(det.points) == n and len(set(owner[det.points])) == 1
@@ -194,8 +194,8 @@ def test_three_chance_outliers_of_one_car_need_split_min_returns_to_stay_outlier
     xyz = np.concatenate([body, odd])
     comp = np.concatenate([planar_system(body, [8.0, 0.0])[1], planar_system(odd, [-5.0, 9.0])[1]])
     dynamic = np.ones(len(xyz), bool)
-    loose = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_min_returns=3), seed=0)
-    strict = detect_objects(xyz, comp, dynamic, np.eye(4), RadarObjectConfig(split_min_returns=4), seed=0)
+    configs = (RadarObjectConfig(split_outliers=True, split_min_returns=k) for k in (3, 4))
+    loose, strict = (detect_objects(xyz, comp, dynamic, np.eye(4), config, seed=0) for config in configs)
     assert len(loose) == 2 and len(loose[1].points) == 3
     assert np.linalg.norm(loose[1].centroid[:2] - loose[0].centroid[:2]) < 2.5  # on the same car
     assert len(strict) == 1 and len(strict[0].outliers) == 3
