@@ -303,6 +303,7 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
                                         rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy()))
             if not config.split_outliers or fit.inliers.all():
                 break
+            # Two returns fit some planar velocity exactly, so a further object never needs fewer than three.
             members, needed = members[~fit.inliers], max(config.min_returns, config.split_min_returns, 3)
     return detections
 
