@@ -71,11 +71,11 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
         i = int(pair["index_i"])
         gt2d, valid = gt_flow_2d(scene, i)
         dynamic = scene.load_optional("gt/dynamic_mask", i) & valid
-        errors, left = in_view_flow_errors(pair["flow"], gt2d, dynamic)
+        errors, left, in_view = in_view_flow_errors(pair["flow"], gt2d, dynamic)
         out_of_view += left
         errors_2d.append(errors)
         if "consistent" in pair and "reliable" in pair:
-            kept_2d.append((pair["consistent"] & pair["reliable"])[landing_inside(gt2d, dynamic)])
+            kept_2d.append((pair["consistent"] & pair["reliable"])[in_view])
         errors_3d.append(lifted_motion_errors(pair, scene.load_optional("gt/flow", i), dynamic))
         dynamic_total += int(dynamic.sum())
         covered += len(errors_3d[-1])
@@ -93,19 +93,14 @@ def motion_frontend_metrics(scene, prepared_dir: str | Path, max_pairs: int | No
             "flow2d_pairs": len(pairs), **two_frame_scene_flow(scene, stored, max_pairs)}
 
 
-def landing_inside(truth: np.ndarray, scored: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the ``scored`` (H, W) pixels whose true landing (pixel + (H, W, 2) ``truth``) lies
-    inside the image."""
-    height, width = scored.shape
-    return scored & lands_in_image(pixel_grid(height, width) + truth, width, height)
-
-
-def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> tuple[np.ndarray, int]:
+def in_view_flow_errors(flow: np.ndarray, truth: np.ndarray,
+                        scored: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
     """(|flow - truth| (K,) px on the ``scored`` pixels whose true landing lies inside the image, in
-    row-major order, how many ``scored`` pixels land outside it). ``flow``, ``truth``: (H, W, 2);
-    ``scored``: (H, W) bool."""
-    in_view = landing_inside(truth, scored)
-    return np.linalg.norm(flow[in_view] - truth[in_view], axis=1), int((scored & ~in_view).sum())
+    row-major order, how many ``scored`` pixels land outside it, and those K pixels as an (H, W) bool
+    mask). ``flow``, ``truth``: (H, W, 2); ``scored``: (H, W) bool."""
+    height, width = scored.shape
+    in_view = scored & lands_in_image(pixel_grid(height, width) + truth, width, height)
+    return np.linalg.norm(flow[in_view] - truth[in_view], axis=1), int((scored & ~in_view).sum()), in_view
 
 
 def kept_split(errors: np.ndarray, kept: np.ndarray | None) -> dict[str, float | None]:
