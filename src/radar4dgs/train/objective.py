@@ -99,7 +99,8 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
         r = motion.radar
         i = draw(len(r)).numpy()
         losses["radar"] = radar_loss(deformation, tensor(r.x[i]), tensor(r.t_i[i]), tensor(r.t_j[i]),
-                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]))
+                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]),
+                                     smooth=motion.radar_smooth)
     if motion.velocity is not None:
         v = motion.velocity
         i = draw(len(v)).numpy()
