@@ -179,31 +179,6 @@ def test_velocity_term_reaches_the_trainer_only_with_a_weight(prepared):
     assert all(torch.equal(without[k], with_velocity[k]) for k in without)
 
 
-def test_smooth_radar_term_reaches_the_trainer(prepared):
-    """``losses.radar_smooth`` reaches the minibatch terms: the same draws, and a smooth L1 is below the
-    absolute residual wherever the residual is not 0 (r^2 / 2b <= r / 2 below b, r - b / 2 above)."""
-    from radar4dgs.io.scene import read_scene
-    from radar4dgs.model.field import DeformationField
-    from radar4dgs.train.data import load_motion_targets
-    from radar4dgs.train.objective import motion_losses
-
-    scene_dir, prep = prepared
-    scene = read_scene(scene_dir)
-    field = DeformationField(preset(TrainConfig, "tiny").field)
-    plain = load_motion_targets(scene, prep, tiny_config())
-    smooth = load_motion_targets(scene, prep, tiny_config(losses={"radar_smooth": 0.05}))
-    assert (plain.radar_smooth, smooth.radar_smooth) == (0.0, 0.05)
-
-    def losses(targets):
-        return motion_losses(field, targets, 64, step_generator(0, 0), torch.device("cpu"), torch.float32)
-
-    absolute, smoothed = losses(plain), losses(smooth)
-    assert torch.equal(absolute["flow"], smoothed["flow"])
-    assert 0 < float(smoothed["radar"]) < float(absolute["radar"])
-    with pytest.raises(ValueError, match="radar_smooth"):
-        tiny_config(losses={"radar_smooth": -1.0})
-
-
 def test_radar_term_takes_doppler_only_from_returns_within_the_training_gate(prepared):
     from radar4dgs.io.scene import normalized_times, read_scene
     from radar4dgs.motion.association import load_radar_dynamics

@@ -117,15 +117,13 @@ def flow_loss(field: DeformationField, x_i: Tensor, x_j: Tensor, t_i: Tensor | f
 
 def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Tensor | float,
                dt: Tensor | float, centre: Tensor, v_r: Tensor, weight: Tensor | None = None,
-               reduction: Reduction = "mean", smooth: float = 0.0) -> Tensor:
+               reduction: Reduction = "mean") -> Tensor:
     """``L_rad`` for (N, 3) points ``x`` at time ``t_i``, displaced to ``t_j``.
 
     Args:
         dt: seconds between the two times (scalar or (N,)); centre: (3,) or (N, 3) radar centre
         at time i; v_r: (N,) associated compensated radial velocity, NaN = unmatched (excluded,
         as if its weight were 0).
-        smooth: 0 for the absolute residual (the paper); > 0 for its smooth L1 with that beta (m):
-        quadratic below beta, so the gradient fades at the optimum instead of keeping its full size.
     """
     matched = torch.isfinite(v_r)
     if not bool(matched.all()):
@@ -134,9 +132,6 @@ def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Ten
         x, centre, v_r = x[matched], per_point(centre, 2), v_r[matched]
         t_i, t_j, dt, weight = (per_point(v, 1) for v in (t_i, t_j, dt, weight))
     residual = radar_residual(field.displacement(x, t_i, t_j), x, centre, v_r, dt)
-    if smooth > 0:
-        residual = torch.nn.functional.smooth_l1_loss(residual, torch.zeros_like(residual), beta=smooth,
-                                                      reduction="none")
     return _reduce(residual, weight, reduction)
 
 

@@ -183,9 +183,6 @@ class LossConfig:
     over_movers_margin: float = 0.05
     flow_weight: float = 1.0  # weight of L_flow (m^2) on the field
     radar_weight: float = 0.5  # weight of L_rad (m) on the field (as the standalone fit's radar_weight)
-    # L_rad's smooth-L1 beta (m): quadratic below it, so its pull fades where the Doppler is already met; 0 = the
-    # absolute residual of the paper.
-    radar_smooth: float = 0.0
     # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off (0.1: -0.59 dB PSNR* on seed 214).
     velocity_weight: float = 0.0
     motion_batch: int = 1024  # flow pairs and radar points drawn per iteration for L_flow, L_rad, L_vel
@@ -407,8 +404,6 @@ class TrainConfig:
                              f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        if self.losses.radar_smooth < 0:
-            raise ValueError(f"losses.radar_smooth must be >= 0 (0: absolute), got {self.losses.radar_smooth}")
         if self.rigid_actors_smoothness < 0:
             raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
         if self.rigid_actors_min_motion < 0:

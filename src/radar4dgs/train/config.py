@@ -25,8 +25,6 @@ class FitConfig:
     # Association gate (m): a point takes the Doppler of its nearest dynamic radar point only if
     # that point is this close (radar positions are noisy by ~1 deg in azimuth: 0.5 m at 30 m).
     radar_gate: float = 2.0
-    # L_rad's smooth-L1 beta (m; metrics.losses.radar_loss); 0 = the absolute residual (the paper).
-    radar_smooth: float = 0.0
     # Where dynamic radar points and compensated Doppler come from: "prepared" =
     # <prepared>/radar/<frame>.npz (the radar front end); "oracle" = gt/radar_labels and the
     # scene's ego velocity.

@@ -188,7 +188,6 @@ class MotionTargets:
     velocity: VelocitySamples | None = None
     velocity_position_std: float = FitConfig.velocity_position_std
     velocity_huber: float = FitConfig.velocity_huber
-    radar_smooth: float = FitConfig.radar_smooth
 
 
 def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTargets:
@@ -216,4 +215,4 @@ def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTar
         stats.update(velocity_stats)
     return MotionTargets(flow if flow is not None and len(flow) else None, radar if len(radar) else None, stats,
                          velocity if velocity is not None and len(velocity) else None,
-                         fit.velocity_position_std, fit.velocity_huber, config.losses.radar_smooth)
+                         fit.velocity_position_std, fit.velocity_huber)

@@ -290,7 +290,7 @@ def _term_loss(name: str, deformation: DeformationField, batch: list[torch.Tenso
     if name == "flow":
         return flow_loss(deformation, *batch)
     if name == "radar":
-        return radar_loss(deformation, *batch, smooth=fit.radar_smooth)
+        return radar_loss(deformation, *batch)
     return velocity_loss(deformation, *batch, position_std=fit.velocity_position_std, huber=fit.velocity_huber)
 
 

@@ -64,7 +64,6 @@ def prefit_field(config: TrainConfig, motion: MotionTargets, device: torch.devic
     fit = FitConfig(iterations=config.optim.field_prefit_iterations, batch_size=losses.motion_batch,
                     radar_weight=losses.radar_weight / scale, velocity_weight=losses.velocity_weight / scale,
                     velocity_position_std=motion.velocity_position_std, velocity_huber=motion.velocity_huber,
-                    radar_smooth=motion.radar_smooth,
                     seed=config.seed, threads=0, device=str(device),
                     dtype="float64" if dtype == torch.float64 else "float32")
     deformation, _ = fit_field(flow, radar, config.field, fit, progress, velocity=velocity)

@@ -99,8 +99,7 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
         r = motion.radar
         i = draw(len(r)).numpy()
         losses["radar"] = radar_loss(deformation, tensor(r.x[i]), tensor(r.t_i[i]), tensor(r.t_j[i]),
-                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]),
-                                     smooth=motion.radar_smooth)
+                                     tensor(r.dt[i]), tensor(r.centre[i]), tensor(r.v_r[i]))
     if motion.velocity is not None:
         v = motion.velocity
         i = draw(len(v)).numpy()
