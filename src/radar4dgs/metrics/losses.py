@@ -115,6 +115,23 @@ def flow_loss(field: DeformationField, x_i: Tensor, x_j: Tensor, t_i: Tensor | f
     return _reduce(flow_residual(field.warp(x_i, t_i, t_j), x_j), weight, reduction)
 
 
+def acceleration_residual(before: Tensor, at: Tensor, after: Tensor) -> Tensor:
+    """(N,) squared second differences ``|after - 2 at + before|^2`` of (N, 3) positions one step apart."""
+    return ((after - 2.0 * at + before) ** 2).sum(dim=-1)
+
+
+def acceleration_loss(field: DeformationField, x: Tensor, t_x: Tensor | float, t: Tensor | float,
+                      step: float, weight: Tensor | None = None, reduction: Reduction = "mean") -> Tensor:
+    """``L_acc`` (m^2): the squared second difference of the field's paths of (N, 3) points ``x`` (seen at
+    ``t_x``) around time(s) ``t``, ``|D_{t+h}(c) - 2 D_t(c) + D_{t-h}(c)|^2`` with ``c = D_{t_x}^-1(x)`` and
+    ``h = step`` (normalised time). Zero for constant velocity, so where no flow or radar reaches (a car
+    about to leave the view, the times between training frames) the field carries on straight."""
+    canonical = field.inverse(x, t_x)
+    t = torch.as_tensor(t, dtype=x.dtype, device=x.device)
+    path = [field.forward(canonical, t + offset) for offset in (-step, 0.0, step)]
+    return _reduce(acceleration_residual(*path), weight, reduction)
+
+
 def radar_loss(field: DeformationField, x: Tensor, t_i: Tensor | float, t_j: Tensor | float,
                dt: Tensor | float, centre: Tensor, v_r: Tensor, weight: Tensor | None = None,
                reduction: Reduction = "mean") -> Tensor:

@@ -186,6 +186,10 @@ class LossConfig:
     # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off (0.1: -0.59 dB PSNR* on seed 214).
     velocity_weight: float = 0.0
     motion_batch: int = 1024  # flow pairs and radar points drawn per iteration for L_flow, L_rad, L_vel
+    # Weight of L_acc (m^2, train.path_prior): the field's paths of observed moving points bent within
+    # acceleration_reach frame steps of the time they were seen; 0 = off.
+    acceleration_weight: float = 0.0
+    acceleration_reach: float = 2.0
     # Association gate (m) of a dynamic point to its nearest dynamic radar point. 1 m, not the fit's 2 m:
     # at 2 m mask spill beside a mover took its Doppler (benchmarks/radar_targets.py, hard tuning seeds).
     radar_gate: float = 1.0

@@ -60,6 +60,9 @@ class FitConfig:
     # Huber threshold on the Mahalanobis distance (standard deviations): beyond it a point pulls
     # with a constant force, so a wrong track cannot dominate (3: the same EPE on the tuning seeds).
     velocity_huber: float = 1.0
+    # Weight of L_acc (m^2; train.path_prior) against L_flow; used where path samples are given (the
+    # trainer's pre-fit, LossConfig.acceleration_weight); 0 = off.
+    acceleration_weight: float = 0.0
     # Also give each object's velocity to the dynamic pixels of frame i (lifted with depth_source,
     # radar_points_per_frame at most) whose nearest object return is within radar_gate: "off";
     # "no_flow" only for objects with fewer than velocity_flow_pairs flow pairs starting within

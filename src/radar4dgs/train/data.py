@@ -37,6 +37,7 @@ from radar4dgs.train.fit_motion import (
     collect_velocity_samples,
     flow_samples_from_pairs,
 )
+from radar4dgs.train.path_prior import PathSamples, path_samples
 
 
 @dataclass
@@ -188,6 +189,7 @@ class MotionTargets:
     velocity: VelocitySamples | None = None
     velocity_position_std: float = FitConfig.velocity_position_std
     velocity_huber: float = FitConfig.velocity_huber
+    path: PathSamples | None = None
 
 
 def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTargets:
@@ -213,6 +215,11 @@ def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTar
     if config.losses.velocity_weight > 0:
         velocity, velocity_stats = collect_velocity_samples(scene, prepared, FlowConfig(), fit, times)
         stats.update(velocity_stats)
-    return MotionTargets(flow if flow is not None and len(flow) else None, radar if len(radar) else None, stats,
+    flow = flow if flow is not None and len(flow) else None
+    path = None
+    if config.losses.acceleration_weight > 0:
+        seen = [(radar.x, radar.t_i)] + ([(flow.x_i, flow.t_i), (flow.x_j, flow.t_j)] if flow is not None else [])
+        path = path_samples(seen, times, config.losses.acceleration_reach)
+    return MotionTargets(flow, radar if len(radar) else None, stats,
                          velocity if velocity is not None and len(velocity) else None,
-                         fit.velocity_position_std, fit.velocity_huber)
+                         fit.velocity_position_std, fit.velocity_huber, path)

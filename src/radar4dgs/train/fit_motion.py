@@ -51,6 +51,7 @@ from radar4dgs.train.object_points import (
     pixels_of_objects,
     prepared_object_points,
 )
+from radar4dgs.train.path_prior import PathSamples, path_loss
 
 # --------------------------------------------------------------------------------------------
 # Data
@@ -248,14 +249,16 @@ def _torch_dtype(name: str) -> torch.dtype:
 
 def fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
               fit: FitConfig, progress: bool = False,
-              velocity: VelocitySamples | None = None) -> tuple[DeformationField, list[dict]]:
-    """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad + velocity_weight * L_vel``.
+              velocity: VelocitySamples | None = None,
+              path: PathSamples | None = None) -> tuple[DeformationField, list[dict]]:
+    """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad + velocity_weight * L_vel``, plus
+    ``acceleration_weight * L_acc`` on ``path`` (:mod:`radar4dgs.train.path_prior`) when given.
 
     Any sample set may be None or empty (that term is off). The normalisation is fitted to
     every sample point. Returns the field (eval mode) and a loss history (every 50 iterations).
     """
     with torch_threads(fit.threads):
-        return _fit_field(flow, radar, velocity, field_config, fit, progress)
+        return _fit_field(flow, radar, velocity, field_config, fit, progress, path)
 
 
 @contextlib.contextmanager
@@ -295,7 +298,8 @@ def _term_loss(name: str, deformation: DeformationField, batch: list[torch.Tenso
 
 
 def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, velocity: VelocitySamples | None,
-               field_config: FieldConfig, fit: FitConfig, progress: bool) -> tuple[DeformationField, list[dict]]:
+               field_config: FieldConfig, fit: FitConfig, progress: bool,
+               path: PathSamples | None = None) -> tuple[DeformationField, list[dict]]:
     columns = _term_columns(flow, radar, velocity)
     if not columns:
         raise ValueError("nothing to fit: no flow pairs, no radar-associated points and no radar-object points")
@@ -325,6 +329,10 @@ def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, velocity: V
         total = losses.get("flow", 0.0) + fit.radar_weight * losses.get("radar", 0.0)
         if "velocity" in losses:
             total = total + fit.velocity_weight * losses["velocity"]
+        if path is not None and fit.acceleration_weight > 0:
+            index = torch.randint(len(path), (min(fit.batch_size, len(path)),), generator=generator)
+            losses["acceleration"] = path_loss(deformation, path, index, generator, dtype, device)
+            total = total + fit.acceleration_weight * losses["acceleration"]
         if not torch.isfinite(total):
             raise FloatingPointError(f"non-finite loss at iteration {step}: "
                                      f"{ {k: float(v) for k, v in losses.items()} }")

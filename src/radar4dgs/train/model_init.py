@@ -63,10 +63,11 @@ def prefit_field(config: TrainConfig, motion: MotionTargets, device: torch.devic
     scale = losses.flow_weight if flow is not None else 1.0  # fit_field weighs L_flow by 1
     fit = FitConfig(iterations=config.optim.field_prefit_iterations, batch_size=losses.motion_batch,
                     radar_weight=losses.radar_weight / scale, velocity_weight=losses.velocity_weight / scale,
+                    acceleration_weight=losses.acceleration_weight / scale,
                     velocity_position_std=motion.velocity_position_std, velocity_huber=motion.velocity_huber,
                     seed=config.seed, threads=0, device=str(device),
                     dtype="float64" if dtype == torch.float64 else "float32")
-    deformation, _ = fit_field(flow, radar, config.field, fit, progress, velocity=velocity)
+    deformation, _ = fit_field(flow, radar, config.field, fit, progress, velocity=velocity, path=motion.path)
     return deformation.train()
 
 

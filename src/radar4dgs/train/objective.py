@@ -28,6 +28,7 @@ from radar4dgs.metrics.losses import (
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import DeformationField
 from radar4dgs.train.data import FrameTargets, MotionTargets
+from radar4dgs.train.path_prior import path_loss
 
 
 def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConfig, stage: int,
@@ -82,8 +83,8 @@ def image_phase(config: TrainConfig, stage: int, step: int) -> tuple[bool, bool]
 
 def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: int,
                   generator: torch.Generator, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
-    """``L_flow``, ``L_rad`` and ``L_vel`` (each when it has samples) on a random minibatch of the
-    field's supervision; the draws are made in that order."""
+    """``L_flow``, ``L_rad``, ``L_vel`` and ``L_acc`` (each when it has samples) on a random minibatch of
+    the field's supervision; the draws are made in that order."""
     def draw(n: int) -> Tensor:
         return torch.randint(n, (min(batch, n),), generator=generator)
 
@@ -106,6 +107,8 @@ def motion_losses(deformation: DeformationField, motion: MotionTargets, batch: i
         losses["velocity"] = velocity_loss(deformation, tensor(v.x[i]), tensor(v.t_i[i]), tensor(v.t_j[i]),
                                            tensor(v.dt[i]), tensor(v.velocity[i]), tensor(v.covariance[i]),
                                            motion.velocity_position_std, motion.velocity_huber)
+    if motion.path is not None:
+        losses["acceleration"] = path_loss(deformation, motion.path, draw(len(motion.path)), generator, dtype, device)
     return losses
 
 
@@ -115,7 +118,8 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
     return {"l1": 1.0 - c.ssim_weight, "ssim": c.ssim_weight, "depth": c.depth_weight,
             "dynamic_depth": c.dynamic_depth_weight, "over_movers": c.over_movers_weight,
             "object": c.object_weight, "sky": c.sky_weight, "flow": c.flow_weight, "radar": c.radar_weight,
-            "velocity": c.velocity_weight, "pose_smooth": config.poses.smooth_weight,
+            "velocity": c.velocity_weight, "acceleration": c.acceleration_weight,
+            "pose_smooth": config.poses.smooth_weight,
             "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight,
             "actor_smooth": config.rigid_actors_smoothness}
 
