@@ -15,7 +15,7 @@ from radar4dgs.metrics.losses import acceleration_loss, acceleration_residual
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.train.config import FitConfig, MotionConfig
 from radar4dgs.train.data import MotionTargets
-from radar4dgs.train.fit_motion import FlowSamples, fit_field
+from radar4dgs.train.fit_motion import FlowSamples, fit_field, run_fit
 from radar4dgs.train.model_init import prefit_field
 from radar4dgs.train.objective import loss_weights, motion_losses
 from radar4dgs.train.path_prior import path_loss, path_samples
@@ -145,3 +145,14 @@ def test_the_trainer_draws_the_term_after_the_others_and_weighs_it():
     assert set(terms[False]) == {"flow"} and set(terms[True]) == {"flow", "acceleration"}
     assert float(terms[True]["flow"]) == float(terms[False]["flow"])  # the flow draws are unchanged
     assert float(terms[True]["acceleration"]) >= 0.0
+
+
+def test_the_standalone_fit_takes_the_prior_from_its_config(motion_scene, motion_prepared):
+    config = preset(MotionConfig, "tiny", flow={"depth_source": "oracle", "mask_source": "oracle"},
+                    fit={"radar_source": "oracle", "iterations": 20, "acceleration_weight": 0.5})
+    _, result = run_fit(motion_scene, motion_prepared, config, evaluate=False)
+    assert all("acceleration" in row for row in result["history"])
+    last, fit = result["history"][-1], config.fit
+    assert last["total"] == pytest.approx(last["flow"] + fit.radar_weight * last.get("radar", 0.0)
+                                          + fit.velocity_weight * last.get("velocity", 0.0)
+                                          + 0.5 * last["acceleration"], rel=1e-5)

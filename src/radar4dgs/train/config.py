@@ -63,6 +63,8 @@ class FitConfig:
     # Weight of L_acc (m^2; train.path_prior) against L_flow; used where path samples are given (the
     # trainer's pre-fit, LossConfig.acceleration_weight); 0 = off.
     acceleration_weight: float = 0.0
+    # How many frame steps either side of the time a point was seen its path is checked.
+    acceleration_reach: float = 2.0
     # Also give each object's velocity to the dynamic pixels of frame i (lifted with depth_source,
     # radar_points_per_frame at most) whose nearest object return is within radar_gate: "off";
     # "no_flow" only for objects with fewer than velocity_flow_pairs flow pairs starting within
