@@ -5,7 +5,7 @@ It reloads the run's saved config (``RUN/config.json``, ``RUN/run.json``) and mo
 gradient (never through the training loop), and writes:
 
 - ``RUN/metrics.json``: ``{"recon": {...}, "nvs": {...}, "mask_source": ..., "mask_coverage": ...,
-  "psnr_dyn_caveats": [...], "lpips_available": ..., "lpips_convention": {...}, "run": {...},
+  "psnr_dyn_caveats": [...], "nvs_seen": {...}, "lpips_available": ..., "lpips_convention": {...}, "run": {...},
   "per_frame": {"recon": [...], "nvs": [...]}}``; each split holds ``psnr``, ``ssim``,
   ``lpips_vgg``, ``lpips_alex`` (null without backbone weights; computed as
   ``lpips_convention`` says: VGG on the [0, 1] images as-is, the 3DGS / gsplat convention,
@@ -18,8 +18,11 @@ gradient (never through the training loop), and writes:
   "predicted"); ``psnr_dyn_caveats`` says when PSNR* means little (masks under
   :data:`MIN_MASK_COVERAGE` of the pixels, predicted masks finding under :data:`MIN_MASK_RECALL`
   of the ground-truth dynamic pixels, predicted masks as PSNR* masks) and ``psnr_dyn_flagged``,
-  per split, whether one of the first two holds. ``run`` (:func:`run_record`): what made the run
-  (preset, method, config hash, code version, training time).
+  per split, whether one of the first two holds. ``nvs_seen`` (scenes with ``gt/depth``, ``gt/flow`` and
+  ``gt/dynamic_mask``; :mod:`radar4dgs.evaluate.observability`): PSNR* over the test frames whose moving
+  pixels the adjacent training frames saw at least half as large, and the frames left out (each test
+  frame's ``unseen_close_share`` is in ``per_frame``); a caveat names them. ``run``
+  (:func:`run_record`): what made the run (preset, method, config hash, code version, training time).
 - ``RUN/renders/{recon,nvs}/<frame>.png`` and ``<frame>_depth.png``, ``<frame>_dynamic.png``.
 - ``RUN/video.mp4``: ground truth | render | depth | dynamic mask, every frame in time order.
 - ``RUN/tb/``: when the run has a TensorBoard log (training keeps one unless ``--no-tensorboard``),
@@ -51,6 +54,7 @@ from radar4dgs.evaluate.alignment import (
     learned_corrections,
     score_aligned,
 )
+from radar4dgs.evaluate.observability import seen_caveats, seen_summary, unseen_close_share
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json
 from radar4dgs.io.preview import doppler_colors, draw_radar_overlay, radar_points_in_camera, save_png
 from radar4dgs.io.scene import SceneWarning, normalized_times, read_mask_png
@@ -293,6 +297,9 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
             found = trained_mask_recall(run, index, source, mask)
             if found is not None:
                 entry["trained_mask_hits"] = found[0]
+            share = unseen_close_share(scene, index, scene.train_indices) if split == "nvs" else None
+            if share is not None:
+                entry["unseen_close_share"] = share
             per_frame[split].append(entry)
             if split == "nvs":
                 exposure_scores.append({"frame": name, **score_frame(exposure_aligned(rgb, gt), gt, mask, {})})
@@ -318,8 +325,10 @@ def evaluate_run(run_dir: str | Path, device: str | None = None, lpips: bool = T
     coverage, caveats = mask_caveats(per_frame, source, scene.camera.width * scene.camera.height)
     recall = mask_recall(per_frame)
     caveats = recall_caveats(recall) + caveats
+    nvs, seen = summarize_frames(per_frame["nvs"]), seen_summary(per_frame["nvs"])
+    caveats += seen_caveats(seen, nvs["psnr_dyn"])
     metrics: dict[str, Any] = {
-        "recon": summarize_frames(per_frame["recon"]), "nvs": summarize_frames(per_frame["nvs"]),
+        "recon": summarize_frames(per_frame["recon"]), "nvs": nvs, "nvs_seen": seen,
         "mask_source": source, "mask_coverage": coverage, "predicted_mask_recall": recall,
         "psnr_dyn_flagged": psnr_dyn_flags(coverage, recall), "psnr_dyn_caveats": caveats,
         "lpips_available": all(s is not None for s in scorers.values()), "lpips_convention": lpips_convention(),
