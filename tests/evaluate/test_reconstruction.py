@@ -12,6 +12,7 @@ from PIL import Image
 
 from radar4dgs.cli import main
 from radar4dgs.evaluate.alignment import exposure_aligned
+from radar4dgs.evaluate.observability import seen_summary, unseen_close_share
 from radar4dgs.evaluate.reconstruction import evaluate_run, format_metrics, load_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -66,6 +67,12 @@ def test_metrics_match_a_recomputation_from_the_saved_renders(trained):
         exposure.append(_psnr(np.round(exposure_aligned(render, torch.as_tensor(gt / 255.0)).numpy() * 255), gt))
     assert metrics["nvs_exposure_aligned"]["n_frames"] == 2
     assert metrics["nvs_exposure_aligned"]["psnr"] == pytest.approx(np.mean(exposure), abs=0.1)
+    # Test frames of a synthetic scene say how close the training frames around them saw their movers.
+    for entry in metrics["per_frame"]["nvs"]:
+        assert entry["unseen_close_share"] == unseen_close_share(scene, entry["index"], scene.train_indices)
+    assert not any("unseen_close_share" in entry for entry in metrics["per_frame"]["recon"])
+    assert metrics["nvs_seen"] == seen_summary(metrics["per_frame"]["nvs"])
+    assert metrics["nvs_seen"]["n_frames"] + len(metrics["nvs_seen"]["unseen_frames"]) == 2
     assert (run_dir / "video.mp4").stat().st_size > 1000
     html = (run_dir / "report.html").read_text()
     assert "data:image/png;base64," in html
