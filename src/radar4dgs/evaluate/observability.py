@@ -17,36 +17,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from radar4dgs.motion.lift import backproject
+from radar4dgs.motion.truth import project, visible_surface
 
 # A moving pixel seen at less than 1 / UNSEEN_RATIO of its size (or not at all) counts as never seen close.
 UNSEEN_RATIO = 2.0
 # A held-out frame whose moving pixels are at least this share never seen close is left out of PSNR*_seen.
 UNSEEN_FRAME_SHARE = 0.2
-# A point counts as visible in a frame when that frame's true depth at its pixel is within this of its own depth
-# (relative, plus an absolute margin for the pixel's rounding on steep surfaces).
-VISIBLE_DEPTH_TOLERANCE = 0.05
-VISIBLE_DEPTH_MARGIN = 0.3
 # Metres added to the nearest-point distance that counts as the same surface in the previous frame.
 NEIGHBOUR_MARGIN = 0.05
-
-
-def project(K: np.ndarray, world_to_camera: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) pixel coordinates and (N,) depths of (N, 3) world ``points``."""
-    camera = points @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
-    z = camera[:, 2]
-    uv = camera @ K.T
-    return uv[:, :2] / np.maximum(uv[:, 2:3], 1e-9), z
-
-
-def visible_pixels(uv: np.ndarray, z: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The points of (N, 2) pixels ``uv`` at (N,) depths ``z`` that a frame with true ``depth`` (H, W) shows:
-    ``(keep (N,) bool, columns (N,), rows (N,))`` (columns and rows rounded, valid where ``keep``)."""
-    height, width = depth.shape
-    cols, rows = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
-    keep = (z > 0.3) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
-    seen = depth[rows[keep], cols[keep]]
-    keep[keep] = np.abs(seen - z[keep]) < VISIBLE_DEPTH_TOLERANCE * z[keep] + VISIBLE_DEPTH_MARGIN
-    return keep, cols, rows
 
 
 def moving_points(scene, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -71,8 +49,8 @@ def closest_seen(scene, index: int, train_indices) -> np.ndarray:
     ratio[mask] = np.inf
     if index + 1 < len(scene) and index + 1 in train:  # this frame's points carried to the next one
         moved = world + scene.load_optional("gt/flow", index).astype(np.float64)[mask]
-        uv, z = project(K, scene.world_to_camera(index + 1), moved)
-        keep, _, _ = visible_pixels(uv, z, scene.load_optional("gt/depth", index + 1).astype(np.float64))
+        keep, _ = visible_surface(moved, scene, index + 1)
+        z = project(moved, K, scene.world_to_camera(index + 1))[1]
         at = rows[keep], cols[keep]
         ratio[at] = np.minimum(ratio[at], z[keep] / here[at])
     if index >= 1 and index - 1 in train:
