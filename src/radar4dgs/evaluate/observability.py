@@ -2,10 +2,10 @@
 
 A held-out frame is drawn from the copies of the training frames around it. At 5 Hz an oncoming car passing the
 ego can be large in the image in the held-out frame only: 15 px wide in the training frame before, 100 px in the
-held-out one, gone in the one after. No model can draw detail that no training frame showed, so PSNR* on such a
-frame says little about the method. :func:`closest_seen` measures it from the generator's truth: for each moving
-pixel of a frame, how much farther from the camera its surface point was in the adjacent training frames that see
-it (a ratio of 2: seen at half this size).
+held-out one, gone in the one after. There a model must invent detail no training frame showed and carry the car
+past the last frame that saw it, so PSNR* on such a frame says more about the protocol than about the method.
+:func:`closest_seen` measures it from the generator's truth: for each moving pixel of a frame, how much farther from
+the camera its surface point was in the adjacent training frames that see it (a ratio of 2: seen at half this size).
 
 Only the adjacent frames are used, because ``gt/flow`` links a frame to the next one alone; with every 4th frame held
 out, they are the training frames around it.
@@ -98,6 +98,6 @@ def seen_caveats(summary: dict | None, psnr_dyn: float | None) -> list[str]:
     without = "n/a" if summary["psnr_dyn"] is None else f"{summary['psnr_dyn']:.2f} dB"
     return [f"PSNR* (nvs): in {len(summary['unseen_frames'])} test frame(s) ({', '.join(summary['unseen_frames'])}) "
             f"at least {UNSEEN_FRAME_SHARE:.0%} of the moving pixels were never seen by the adjacent training frames "
-            f"at even 1/{UNSEEN_RATIO:g} of their size (a mover passing close between them); no model can draw that "
-            f"detail. PSNR* is {psnr_dyn:.2f} dB over all test frames, {without} over the other "
+            f"at even 1/{UNSEEN_RATIO:g} of their size (a mover passing close between them): detail no training frame "
+            f"showed. PSNR* is {psnr_dyn:.2f} dB over all test frames, {without} over the other "
             f"{summary['n_frames']} (nvs_seen)"]
