@@ -45,6 +45,9 @@ class CompletionConfig:
     # novel-view PSNR* (realistic 101: 20.03 -> 19.41 dB; rush 5 Hz 214: 20.46 -> 20.11) and the
     # static layer under removed cars 16.87 -> 16.39 dB (101; benchmarks/results/masks-training.json).
     # Not broken down; likely, a fast car the masks now cover goes to the field, which cannot follow it.
+    # Again on 2026-12-05 with for_flow on: recall 0.83-0.89 -> 0.98-0.99 on hard tuning seeds 231-233, PSNR*
+    # +0.15 dB over training seeds 0-2 at 600 iterations (231 +1.18, 232 -0.25, 233 -0.48;
+    # benchmarks/results/masks-completion-2026-12-05.json).
     enabled: bool = False  # complete the masks with the radar objects (skipped without <prepared>/radar/objects.json)
     # With enabled off, still write completed masks for the flow stage alone (<prepared>/masks/flow/):
     # the flow stage then steps the whole car the radar sees, not the part the network found, while
