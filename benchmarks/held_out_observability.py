@@ -106,15 +106,16 @@ def main() -> None:
               f"({s['seen']['n_frames']}); and masks found {fmt(s['seen_and_found']['psnr_dyn'])} "
               f"({s['seen_and_found']['n_frames']}); unseen {fmt(s['unseen']['psnr_dyn'])} {s['unseen']['frames']}",
               flush=True)
-    atomic_write_json(args.out, {
-        "command": "python benchmarks/held_out_observability.py " + " ".join(str(r) for r in args.runs)
-                   + ("" if args.window is None else f" --window {args.window:g}") + f" --recall {args.recall:g}",
-        "unseen_ratio": UNSEEN_RATIO, "unseen_frame_share": UNSEEN_FRAME_SHARE, "runs": results,
-        "mean": {"all": mean_or_none([r["summary"]["psnr_dyn"] for r in results.values()
-                                      if r["summary"]["psnr_dyn"] is not None]),
-                 **{key: mean_or_none([r["summary"][key]["psnr_dyn"] for r in results.values()
-                                       if r["summary"][key]["psnr_dyn"] is not None])
-                    for key in ("seen", "seen_and_found")}}})
+        # Written after every run, so a run that fails to load keeps the ones before it.
+        atomic_write_json(args.out, {
+            "command": "python benchmarks/held_out_observability.py " + " ".join(str(r) for r in args.runs)
+                       + ("" if args.window is None else f" --window {args.window:g}") + f" --recall {args.recall:g}",
+            "unseen_ratio": UNSEEN_RATIO, "unseen_frame_share": UNSEEN_FRAME_SHARE, "runs": results,
+            "mean": {"all": mean_or_none([r["summary"]["psnr_dyn"] for r in results.values()
+                                          if r["summary"]["psnr_dyn"] is not None]),
+                     **{key: mean_or_none([r["summary"][key]["psnr_dyn"] for r in results.values()
+                                           if r["summary"][key]["psnr_dyn"] is not None])
+                        for key in ("seen", "seen_and_found")}}})
 
 
 if __name__ == "__main__":
