@@ -221,7 +221,7 @@ def test_static_over_movers_is_opacity_times_the_covered_box_in_front_of_the_mov
         means2d, radii, depths, opacity = _one_gaussian(depth)
         zero = static_over_movers(means2d, radii * rad / 3.0, depths, opacity, m,
                                   torch.full((32, 40), surf, dtype=torch.float64), margin=0.05)
-        assert float(zero) == 0.0
+        assert float(zero.detach()) == 0.0
     # 9.4 m is: the margin is relative.
     means2d, radii, depths, opacity = _one_gaussian(9.4)
     assert float(static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.05)) > 0
