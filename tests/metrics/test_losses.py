@@ -224,7 +224,7 @@ def test_static_over_movers_is_opacity_times_the_covered_box_in_front_of_the_mov
         assert float(zero.detach()) == 0.0
     # 9.4 m is: the margin is relative.
     means2d, radii, depths, opacity = _one_gaussian(9.4)
-    assert float(static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.05)) > 0
+    assert float(static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.05).detach()) > 0
 
 
 def test_static_over_movers_counts_the_probes_on_the_mask_and_caps_a_large_gaussian_at_the_mask():
