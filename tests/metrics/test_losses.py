@@ -235,7 +235,7 @@ def test_static_over_movers_counts_the_probes_on_the_mask_and_caps_a_large_gauss
     means2d, radii, depths, opacity = _one_gaussian(4.0, sigma_px=4.0)
     value = static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.0)
     # The box is 8 x 8 = 64 px^2; 2 of 5 probes hit -> 25.6 px, capped at the mask's 2 pixels.
-    assert float(value) == pytest.approx(0.4 * 2.0 / (32 * 40))
+    assert float(value.detach()) == pytest.approx(0.4 * 2.0 / (32 * 40))
     mask[:, :] = True
     value = static_over_movers(means2d, radii, depths, opacity, mask, surface, margin=0.0)
-    assert float(value) == pytest.approx(0.4 * 64.0 / (32 * 40))
+    assert float(value.detach()) == pytest.approx(0.4 * 64.0 / (32 * 40))
