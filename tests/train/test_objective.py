@@ -91,7 +91,7 @@ def test_static_gaussians_drawn_over_a_mover_from_in_front_lose_opacity_and_the_
     grad = model.dynamic.params["opacity_logits"].grad
     assert grad is None or float(grad.abs().sum()) == 0.0
     # Behind the car, the term is 0; with the static set frozen (stage 2) or the weight 0 (the default), absent.
-    assert float(rendered_terms(config, *road_over_car(30.0), 3, ignore_dynamic=True)[1]["over_movers"]) == 0.0
+    assert float(rendered_terms(config, *road_over_car(30.0), 3, ignore_dynamic=True)[1]["over_movers"].detach()) == 0.0
     model, target = road_over_car(3.0)
     frozen = model.render(target.view, detach_static=True)
     assert "over_movers" not in image_losses(frozen, target, config, 2, ignore_dynamic=False)
