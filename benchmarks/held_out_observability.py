@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from radar4dgs.evaluate.observability import UNSEEN_FRAME_SHARE, UNSEEN_RATIO, closest_seen
+from radar4dgs.evaluate.observability import UNSEEN_FRAME_SHARE, UNSEEN_RATIO, closest_seen, seen_summary, unseen_share
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import save_png
 from radar4dgs.io.scene import normalized_times
@@ -52,22 +52,23 @@ def run_frames(run_dir: Path, window: float | None) -> tuple[list[dict], dict]:
             continue
         truth = torch.as_tensor(scene.load_image(index).astype(np.float32) / 255.0)
         rgb = run.model.render(frame_view(scene, index, 1.0, times), run.config.raster)["rgb"].clamp(0, 1)
-        unseen = moving & (ratio > UNSEEN_RATIO)
         rows.append({"frame": int(index), "psnr_dyn": psnr(rgb, truth, torch.as_tensor(moving)),
-                     "pixels": int(moving.sum()), "unseen_close_share": float(unseen.sum() / moving.sum()),
+                     "pixels": int(moving.sum()), "unseen_close_share": unseen_share(ratio),
                      "mask_recall": None if hits.get(index) is None else hits[index] / int(moving.sum())})
-        pictures[index] = (rgb.numpy(), unseen)
+        pictures[index] = (rgb.numpy(), moving & (ratio > UNSEEN_RATIO))
     return rows, {"scene": scene, "pictures": pictures}
 
 
 def summary(rows: list[dict], recall: float) -> dict:
-    seen = [r for r in rows if r["unseen_close_share"] < UNSEEN_FRAME_SHARE]
-    found = [r for r in seen if r["mask_recall"] is not None and r["mask_recall"] >= recall]
+    seen = seen_summary(rows) or {"psnr_dyn": None, "n_frames": 0, "unseen_frames": []}
+    unseen = set(seen["unseen_frames"])
+    found = [r for r in rows
+             if r["frame"] not in unseen and r["mask_recall"] is not None and r["mask_recall"] >= recall]
     return {"psnr_dyn": mean_or_none([r["psnr_dyn"] for r in rows]), "n_frames": len(rows),
-            "seen": {"psnr_dyn": mean_or_none([r["psnr_dyn"] for r in seen]), "n_frames": len(seen)},
+            "seen": {"psnr_dyn": seen["psnr_dyn"], "n_frames": seen["n_frames"]},
             "seen_and_found": {"psnr_dyn": mean_or_none([r["psnr_dyn"] for r in found]), "n_frames": len(found)},
-            "unseen": {"psnr_dyn": mean_or_none([r["psnr_dyn"] for r in rows if r not in seen]),
-                       "frames": [r["frame"] for r in rows if r not in seen]}}
+            "unseen": {"psnr_dyn": mean_or_none([r["psnr_dyn"] for r in rows if r["frame"] in unseen]),
+                       "frames": [r["frame"] for r in rows if r["frame"] in unseen]}}
 
 
 def figure(rows: list[dict], extra: dict, path: Path) -> int | None:

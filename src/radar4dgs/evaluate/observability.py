@@ -27,14 +27,15 @@ UNSEEN_FRAME_SHARE = 0.2
 NEIGHBOUR_MARGIN = 0.05
 
 
-def moving_points(scene, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Frame ``index``'s true moving pixels with a depth: ``(mask (H, W), rows (N,), cols (N,), world (N, 3))``."""
+def moving_points(scene, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``index``'s true moving pixels with a depth: ``(mask (H, W), rows (N,), cols (N,), world (N, 3),
+    depth (N,))``."""
     depth = scene.load_optional("gt/depth", index).astype(np.float64)
     mask = (scene.load_optional("gt/dynamic_mask", index) > 0) & np.isfinite(depth) & (depth > 0)
     rows, cols = np.nonzero(mask)
     world = backproject(np.stack([cols, rows], axis=1).astype(np.float64), depth[rows, cols], scene.camera.K,
                         scene.world_to_camera(index))
-    return mask, rows, cols, world
+    return mask, rows, cols, world, depth[rows, cols]
 
 
 def closest_seen(scene, index: int, train_indices) -> np.ndarray:
@@ -43,8 +44,7 @@ def closest_seen(scene, index: int, train_indices) -> np.ndarray:
     adjacent training frame shows it); NaN off the moving pixels."""
     train = set(int(i) for i in train_indices)
     K = scene.camera.K
-    mask, rows, cols, world = moving_points(scene, index)
-    here = scene.load_optional("gt/depth", index).astype(np.float64)
+    mask, rows, cols, world, here = moving_points(scene, index)
     ratio = np.full(mask.shape, np.nan)
     ratio[mask] = np.inf
     if index + 1 < len(scene) and index + 1 in train:  # this frame's points carried to the next one
@@ -52,20 +52,19 @@ def closest_seen(scene, index: int, train_indices) -> np.ndarray:
         keep, _ = visible_surface(moved, scene, index + 1)
         z = project(moved, K, scene.world_to_camera(index + 1))[1]
         at = rows[keep], cols[keep]
-        ratio[at] = np.minimum(ratio[at], z[keep] / here[at])
+        ratio[at] = np.minimum(ratio[at], z[keep] / here[keep])
     if index >= 1 and index - 1 in train:
         # The previous frame's points carried to this time, and for each moving pixel here the nearest of them.
         # Looked up, not splatted: a mover that came closer covers more pixels here than it had points there.
-        before_mask, before_rows, before_cols, before = moving_points(scene, index - 1)
+        before_mask, _, _, before, before_depth = moving_points(scene, index - 1)
         if len(before):
-            before_depth = scene.load_optional("gt/depth", index - 1).astype(np.float64)[before_rows, before_cols]
             moved = before + scene.load_optional("gt/flow", index - 1).astype(np.float64)[before_mask]
             distance, nearest = cKDTree(moved).query(world)
             # Within two of that frame's pixel footprints (plus rounding): the same surface, seen there.
             footprint = before_depth[nearest] / scene.camera.K[0, 0]
             seen = distance < 2.0 * footprint + NEIGHBOUR_MARGIN
             at = rows[seen], cols[seen]
-            ratio[at] = np.minimum(ratio[at], before_depth[nearest[seen]] / here[at])
+            ratio[at] = np.minimum(ratio[at], before_depth[nearest[seen]] / here[seen])
     return ratio
 
 
@@ -74,7 +73,12 @@ def unseen_close_share(scene, index: int, train_indices) -> float | None:
     1 / :data:`UNSEEN_RATIO` as large; None where the scene lacks the truth or the frame has no moving pixel."""
     if not all(scene.has(name) for name in ("gt/depth", "gt/flow", "gt/dynamic_mask")):
         return None
-    ratio = closest_seen(scene, index, train_indices)
+    return unseen_share(closest_seen(scene, index, train_indices))
+
+
+def unseen_share(ratio: np.ndarray) -> float | None:
+    """The share of the moving pixels of a :func:`closest_seen` map (H, W) seen at under 1 / :data:`UNSEEN_RATIO`
+    of their size or not at all; None without moving pixels."""
     moving = ~np.isnan(ratio)
     return float((ratio[moving] > UNSEEN_RATIO).mean()) if moving.any() else None
 
