@@ -37,7 +37,7 @@ from radar4dgs.train.fit_motion import (
     collect_velocity_samples,
     flow_samples_from_pairs,
 )
-from radar4dgs.train.path_prior import PathSamples, path_samples
+from radar4dgs.train.path_prior import PathSamples, observed_path_samples
 
 
 @dataclass
@@ -218,8 +218,7 @@ def load_motion_targets(scene, prepared: Path, config: TrainConfig) -> MotionTar
     flow = flow if flow is not None and len(flow) else None
     path = None
     if config.losses.acceleration_weight > 0:
-        seen = [(radar.x, radar.t_i)] + ([(flow.x_i, flow.t_i), (flow.x_j, flow.t_j)] if flow is not None else [])
-        path = path_samples(seen, times, config.losses.acceleration_reach)
+        path = observed_path_samples(flow, radar, times, config.losses.acceleration_reach)
     return MotionTargets(flow, radar if len(radar) else None, stats,
                          velocity if velocity is not None and len(velocity) else None,
                          fit.velocity_position_std, fit.velocity_huber, path)

@@ -51,7 +51,7 @@ from radar4dgs.train.object_points import (
     pixels_of_objects,
     prepared_object_points,
 )
-from radar4dgs.train.path_prior import PathSamples, path_loss, path_samples
+from radar4dgs.train.path_prior import PathSamples, observed_path_samples, path_loss
 
 # --------------------------------------------------------------------------------------------
 # Data
@@ -445,9 +445,8 @@ def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None,
     if use_velocity:
         velocity_samples, stats = collect_velocity_samples(scene, prepared, config.flow, config.fit, times)
         result.update(stats)
-    seen = ([(flow_samples.x_i, flow_samples.t_i), (flow_samples.x_j, flow_samples.t_j)] if flow_samples else []) + \
-        ([(radar_samples.x, radar_samples.t_i)] if radar_samples else [])
-    path = path_samples(seen, times, config.fit.acceleration_reach) if config.fit.acceleration_weight > 0 else None
+    path = observed_path_samples(flow_samples, radar_samples, times, config.fit.acceleration_reach) \
+        if config.fit.acceleration_weight > 0 else None
     data_seconds = time.perf_counter() - started
     fit_started = time.perf_counter()
     deformation, history = fit_field(flow_samples, radar_samples, config.field, config.fit, progress,
