@@ -10,6 +10,7 @@ from radar4dgs.radar.config import RadarConfig, RadarObjectConfig
 from radar4dgs.radar.least_squares import direction_noise_gram
 from radar4dgs.radar.objects import (
     OBJECTS_FILE,
+    SPLIT_OBJECTS_FILE,
     cluster_points,
     corrected_least_squares,
     detect_objects,
@@ -350,3 +351,15 @@ def test_prepare_writes_objects_for_a_synthetic_scene(tmp_path):
         for obj in objects:
             assert obj.num_returns == len(obj.points) >= RadarObjectConfig().min_returns
             assert obj.points.max(initial=-1) < n and not set(obj.points) & set(obj.outliers)
+    # Beside them the split objects: each cluster's first fit is the same object, its outliers may make more.
+    split = load_radar_objects(tmp_path / "prepared", SPLIT_OBJECTS_FILE)
+    assert len(split) == len(loaded)
+    for objects, finer in zip(loaded, split, strict=True):
+        assert len(finer) >= len(objects)
+        assert {tuple(o.points) for o in objects} <= {tuple(o.points) for o in finer}
+    # With split_outliers on, objects.json is already split and the second file is the same.
+    config = preset(RadarConfig, "tiny")
+    config.objects.split_outliers = True
+    prepare_radar(scene, tmp_path / "split" / "radar", config)
+    written = tmp_path / "split" / "radar"
+    assert (written / SPLIT_OBJECTS_FILE).read_bytes() == (written / OBJECTS_FILE).read_bytes()

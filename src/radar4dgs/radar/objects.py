@@ -55,6 +55,8 @@ from radar4dgs.radar.least_squares import direction_noise_gram
 from radar4dgs.radar.tracking import smooth_tracks, track_detections
 
 OBJECTS_FILE = "objects.json"
+# The objects with every cluster's outliers fitted again (RadarObjectConfig.split_outliers), beside objects.json.
+SPLIT_OBJECTS_FILE = "objects_split.json"
 FORMAT = "radar4dgs-radar-objects"
 
 
@@ -389,9 +391,10 @@ def _radar_object(record: dict) -> RadarObject:
                        outliers=np.asarray(record["outliers"], dtype=np.int64), **arrays)
 
 
-def load_radar_objects(prepared_dir: str | Path) -> list[list[RadarObject]]:
-    """The objects of every frame, in frame order, from ``<prepared_dir>/radar/objects.json``."""
-    path = Path(prepared_dir) / "radar" / OBJECTS_FILE
+def load_radar_objects(prepared_dir: str | Path, name: str = OBJECTS_FILE) -> list[list[RadarObject]]:
+    """The objects of every frame, in frame order, from ``<prepared_dir>/radar/<name>`` (``objects.json``,
+    or :data:`SPLIT_OBJECTS_FILE`)."""
+    path = Path(prepared_dir) / "radar" / name
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing file (run `radar4dgs prepare --only radar`; "
                                 f"older prepared folders lack it: add --force)")
@@ -404,7 +407,7 @@ def load_radar_objects(prepared_dir: str | Path) -> list[list[RadarObject]]:
         raise ValueError(f"{path}: malformed object record ({exc!r})") from exc
 
 
-def optional_radar_objects(prepared_dir: str | Path | None, n_frames: int
+def optional_radar_objects(prepared_dir: str | Path | None, n_frames: int, name: str = OBJECTS_FILE
                            ) -> tuple[list[list[RadarObject]] | None, str | None]:
     """The objects of every frame (:func:`load_radar_objects`) for the stages that work without
     them, or None and why not: no prepared folder, a missing or malformed ``objects.json``, or one
@@ -412,10 +415,10 @@ def optional_radar_objects(prepared_dir: str | Path | None, n_frames: int
     if prepared_dir is None:
         return None, "no prepared folder"
     try:
-        objects = load_radar_objects(prepared_dir)
+        objects = load_radar_objects(prepared_dir, name)
     except (FileNotFoundError, ValueError) as exc:
         return None, str(exc)
     if len(objects) != n_frames:
-        return None, (f"{Path(prepared_dir) / 'radar' / OBJECTS_FILE}: has {len(objects)} frames, the scene "
+        return None, (f"{Path(prepared_dir) / 'radar' / name}: has {len(objects)} frames, the scene "
                       f"{n_frames} (stale: rerun `radar4dgs prepare --only radar --force`)")
     return objects, None

@@ -11,6 +11,9 @@ Outputs (``out_dir`` is ``<prepared>/radar``):
     disagreement use the re-stamped scans; later stages get them with ``prepared_synced_scene``.
     ``objects.json``: the dynamic points grouped into tracked objects with a planar velocity each
     (schema in :mod:`radar4dgs.radar.objects`; read it with ``load_radar_objects``).
+    ``objects_split.json``: the same with every cluster's outliers fitted again
+    (``RadarObjectConfig.split_outliers``; with that option on, the same as ``objects.json``); the flow
+    stage predicts its rejected pixels' motion from it where ``objects.json`` has no object for them.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from radar4dgs.io.atomic import atomic_save_npz, atomic_write_json
 from radar4dgs.radar.classify import classify_dynamic
 from radar4dgs.radar.config import RadarConfig
 from radar4dgs.radar.ego_motion import EgoMotion, estimate_ego_motion
-from radar4dgs.radar.objects import OBJECTS_FILE, detect_objects, track_objects
+from radar4dgs.radar.objects import OBJECTS_FILE, SPLIT_OBJECTS_FILE, detect_objects, track_objects
 from radar4dgs.radar.poses import expected_radar_velocity, fill_gaps
 from radar4dgs.radar.sync import offset_to_apply, scene_time_offset, synced_scene
 
@@ -105,7 +108,9 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
     scene = synced_scene(scene, applied)
     stamps = np.array([f.radar_timestamp for f in scene.frames])
 
-    frames, detections = [], []
+    frames, detections, split_detections = [], [], []
+    # The split objects are a second, finer reading of the same scans: only the flow stage's fill reads them.
+    split_config = None if config.objects.split_outliers else dataclasses.replace(config.objects, split_outliers=True)
     for i, (fit, (xyz, v_r)) in enumerate(zip(fits, points, strict=True)):
         used = dataclasses.replace(fit, velocity=velocities[i])
         if not np.all(np.isfinite(used.covariance)) and np.all(np.isfinite(used.velocity)):
@@ -116,9 +121,11 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
             ego_velocity=used.velocity.astype(np.float64), covariance=used.covariance.astype(np.float64),
             ok=np.bool_(fit.ok), inliers=fit.inliers, dynamic=dynamic, v_r_comp=comp.astype(np.float32)),
             compressed=False)
-        detections.append(detect_objects(xyz, comp, dynamic, scene.radar_to_world(i), config.objects,
-                                         seed=config.seed + i, radar_velocity=used.velocity,
-                                         angle_std=(config.azimuth_std, config.elevation_std)))
+        for wanted, found in ((config.objects, detections), (split_config, split_detections)):
+            if wanted is not None:
+                found.append(detect_objects(xyz, comp, dynamic, scene.radar_to_world(i), wanted,
+                                            seed=config.seed + i, radar_velocity=used.velocity,
+                                            angle_std=(config.azimuth_std, config.elevation_std)))
         frames.append({"name": scene.frames[i].name, "ok": bool(fit.ok), "reason": fit.reason,
                        "points": int(len(xyz)), "inliers": int(fit.inliers.sum()),
                        "dynamic": int(dynamic.sum()), "speed": _finite_or_none(used.speed),
@@ -135,7 +142,11 @@ def prepare_radar(scene, out_dir: str | Path, config: RadarConfig | None = None,
         entry["disagreement"] = None if errs is None else errs[i]
     atomic_write_json(out_dir / "summary.json", summary)
     names = [f.name for f in scene.frames]
-    atomic_write_json(out_dir / OBJECTS_FILE, track_objects(names, stamps, detections, config.objects))
+    objects = track_objects(names, stamps, detections, config.objects)
+    atomic_write_json(out_dir / OBJECTS_FILE, objects)
+    split = (objects if split_config is None
+             else track_objects(names, stamps, split_detections, split_config))
+    atomic_write_json(out_dir / SPLIT_OBJECTS_FILE, split)
     return summary
 
 
