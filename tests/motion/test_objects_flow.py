@@ -26,7 +26,13 @@ from radar4dgs.motion.object_hints import (
     split_by_returns,
     static_hint,
 )
-from radar4dgs.motion.objects_flow import PairGeometry, choose_candidate, component_owners, object_flow
+from radar4dgs.motion.objects_flow import (
+    PairGeometry,
+    choose_candidate,
+    claimed_predictions,
+    component_owners,
+    object_flow,
+)
 from radar4dgs.motion.optical_flow import dis_flow
 from radar4dgs.motion.rigid import rigid_object_flow
 
@@ -193,6 +199,49 @@ def test_rejected_pixels_no_neighbour_can_fill_store_their_radar_prediction():
     assert np.abs(runs[False].forward[rows, cols] - pair["flow"][rows, cols]).max() > 1.0
     outside = ~pair["mask_a"]
     assert np.array_equal(runs[True].forward[outside], runs[False].forward[outside])
+
+
+def test_rejected_pixels_no_object_claims_take_the_split_objects_prediction():
+    """The same failed match, its object missing from the frame's objects (its returns went to another
+    mover's fit) but present among the split objects: the stored flow of its rejected pixels is that
+    object's prediction, the lifted pairs are the same, and an object of frame i's own objects wins."""
+    pair = object_pair(shift=60.0, scale=1.2, swap_texture=True)
+    rows, cols = np.nonzero(pair["mask_a"])
+    pixels = np.stack([cols, rows], axis=1)
+    predicted = predicted_targets(pixels, pair["depth_a"][rows, cols], K, np.eye(4), np.eye(4),
+                                  pair["velocity"] * DT) - pixels
+    inputs = {**pair_inputs(pair), "hints_i": [], "hints_j": [], "dt": DT, "fill_hints_i": [hint(pair)]}
+    runs = {on: pair_scene_flow(FlowConfig(radar_dense_margin=1.2, fill_split_objects=on), **inputs)
+            for on in (False, True)}
+    assert len(runs[True].points_i) == len(runs[False].points_i) == 0
+    assert runs[True].filled[rows, cols].all() and not runs[False].filled[rows, cols].any()
+    assert runs[True].forward[rows, cols] == pytest.approx(predicted, abs=1e-3)
+    outside = ~pair["mask_a"]
+    assert np.array_equal(runs[True].forward[outside], runs[False].forward[outside])
+    # Where frame i's own objects predict, the split objects change nothing.
+    slower = hint(pair, pair["velocity"] / 2)
+    own = {**inputs, "hints_i": [slower]}
+    with_split = pair_scene_flow(FlowConfig(radar_dense_margin=1.2), **own)
+    without = pair_scene_flow(FlowConfig(radar_dense_margin=1.2), **{**own, "fill_hints_i": None})
+    assert np.array_equal(with_split.forward, without.forward)
+
+
+def test_claimed_predictions_split_a_component_between_its_objects_by_their_returns():
+    """Two objects claim one component, each with returns on its own half at the object's depth: each
+    half takes its own object's predicted motion (the closed form f v dt / z px at rest), the rest NaN."""
+    mask = np.zeros((HEIGHT, WIDTH), dtype=bool)
+    mask[40:60, 40:120] = True
+    depth = np.full(mask.shape, DEPTH)
+    halves = []
+    for u0, vx in ((50.0, 2.0), (110.0, -3.0)):
+        uv = np.array([[u0, 45.0], [u0 + 4, 50.0], [u0 - 4, 55.0]])
+        camera = np.column_stack([(uv - K[:2, 2]) * DEPTH / FOCAL, np.full(3, DEPTH)])
+        halves.append(ObjectHint(uv, np.array([vx, 0.0, 0.0]), track=len(halves), camera=camera))
+    predicted = claimed_predictions(mask, halves, geometry(depth), FlowConfig())
+    assert np.isnan(predicted[~mask]).all()
+    assert predicted[50, 45] == pytest.approx([FOCAL * 2.0 * DT / DEPTH, 0.0], abs=1e-4)
+    assert predicted[50, 115] == pytest.approx([FOCAL * -3.0 * DT / DEPTH, 0.0], abs=1e-4)
+    assert claimed_predictions(mask, [], geometry(depth), FlowConfig()).shape == (HEIGHT, WIDTH, 2)
 
 
 def test_without_radar_objects_the_flow_is_todays():
@@ -377,8 +426,19 @@ def test_the_flow_stage_uses_the_prepared_radar_objects(motion_scene, tmp_path):
     prepare_radar(motion_scene, tmp_path / "radar")
     summary = prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", depth_source="oracle",
                                                           mask_source="oracle"))
-    assert summary["radar_objects"] == "used"
+    assert summary["radar_objects"] == summary["split_objects"] == "used"
     assert sum(summary["models"][m] for m in ("dense", "translation", "radar", "matched")) > 0
+    off = prepare_flow(motion_scene, tmp_path, preset(FlowConfig, "tiny", depth_source="oracle", mask_source="oracle",
+                                                      fill_split_objects=False))
+    assert off["split_objects"] == "off"
+    # A folder whose radar stage predates objects_split.json: the flow runs without it, and prepare says so.
+    from radar4dgs.motion.flow import run_flow_stage
+
+    (tmp_path / "radar" / "objects_split.json").unlink()
+    result = run_flow_stage(motion_scene, tmp_path / "flow", preset(FlowConfig, "tiny", depth_source="oracle",
+                                                                       mask_source="oracle"), lambda items: items)
+    assert result["note"].startswith(f"no second movers' predictions, unavailable: {tmp_path / 'radar'}")
+    assert result["note"].endswith("`--only radar flow --force` adds them")
     assert sum(p["models"]["no_radar"] for p in summary["per_pair"]) == summary["models"]["no_radar"]
 
 

@@ -232,15 +232,16 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
     return status
 
 
-def _radarless_note(stage_dir: Path) -> str:
-    """", the scene has no radar: <what the stage did instead>" for a radar-less scene's stage, and
-    the radar stage's clock-offset action ("time sync: applied ...")."""
+def _stage_note(stage_dir: Path) -> str:
+    """", the scene has no radar: <what the stage did instead>" for a radar-less scene's stage, the
+    radar stage's clock-offset action ("time sync: applied ...") and a stage's own ``note``."""
     try:
-        note = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"].get("no_radar")
-        sync = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"].get("time_sync")
+        result = json.loads((stage_dir / STAGE_MARKER).read_text(encoding="utf-8"))["result"]
+        no_radar, sync, note = result.get("no_radar"), result.get("time_sync"), result.get("note")
     except (OSError, ValueError, KeyError, AttributeError):
         return ""
-    return (f" (the scene has no radar: {note})" if note else "") + (f" (time sync: {sync})" if sync else "")
+    return ((f" (the scene has no radar: {no_radar})" if no_radar else "") + (f" (time sync: {sync})" if sync else "")
+            + (f" ({note})" if note else ""))
 
 
 @dataclass
@@ -275,5 +276,5 @@ class PrepareCommand:
                              progress=not self.quiet)
         prepared = self.out if self.out is not None else self.scene / "prepared"
         for name, what in status.items():
-            print(f"{name}: {what}{_radarless_note(prepared / name)} -> {prepared / name}")
+            print(f"{name}: {what}{_stage_note(prepared / name)} -> {prepared / name}")
         return 0

@@ -18,7 +18,8 @@ images never supervise the field), with keys
     ``reliable``   (H, W) bool        not dropped as a photometric failure (objects_flow.reliable_pixels)
     ``filled``     (H, W) bool        mask pixels the checks rejected whose ``flow`` is their nearest
                                       lifted neighbour's (objects_flow.fill_rejected_flow) or, with
-                                      no neighbour, their radar object's prediction
+                                      no neighbour, their radar object's prediction, or that of an
+                                      object only the split radar objects have
 
 Each dynamic-mask component gets the motion that explains the two images best (both directions,
 before the consistency check): with ``FlowConfig.radar_guided`` and ``<prepared>/radar/objects.json``,
@@ -27,7 +28,9 @@ around that (:mod:`.objects_flow`); otherwise its translation where that beats t
 (``FlowConfig.rigid_objects``). kept = dynamic (mask) & consistent & reliable & valid depth in both
 frames. The stored ``flow`` of mask pixels the checks reject is then filled from the lifted pixels of
 their object (:func:`.objects_flow.fill_rejected_flow`), else (``FlowConfig.fill_radar_prediction``) set
-to their radar object's predicted motion; they stay unlifted. Where the object-depth
+to their radar object's predicted motion, and (``FlowConfig.fill_split_objects``) the pixels of an object
+that only ``radar/objects_split.json`` has (a second mover whose returns fell among another's outliers) to
+its prediction (:func:`.objects_flow.claimed_predictions`); they stay unlifted. Where the object-depth
 stage rescaled a frame, frame j's end of each pair is lifted with the depth stage's map of j times
 frame i's object scale (``FlowConfig.one_scale_per_pair``): both ends on one scale. ``flow/config.json``
 holds the resolved :class:`FlowConfig` (pixel lengths scaled to the scene's width when
@@ -49,11 +52,17 @@ from radar4dgs.io.scene_files import FLOW_MASKS, prepared_depth_path
 from radar4dgs.motion.config import FlowConfig, flow_settings_at_width
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
 from radar4dgs.motion.object_hints import ObjectHint, frame_hints, static_hint
-from radar4dgs.motion.objects_flow import PairGeometry, fill_rejected_flow, object_flow, reliable_pixels
+from radar4dgs.motion.objects_flow import (
+    PairGeometry,
+    claimed_predictions,
+    fill_rejected_flow,
+    object_flow,
+    reliable_pixels,
+)
 from radar4dgs.motion.optical_flow import FlowEstimator, consistency_mask, to_gray
 from radar4dgs.motion.rigid import rigid_object_flow
 from radar4dgs.motion.truth import gt_scene_flow, image_flow, visible_surface
-from radar4dgs.radar.objects import optional_radar_objects
+from radar4dgs.radar.objects import SPLIT_OBJECTS_FILE, optional_radar_objects
 from radar4dgs.radar.process import load_radar_dynamics_flags
 
 
@@ -167,7 +176,7 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
                     mask_j: np.ndarray, K: np.ndarray, world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray,
                     hints_i: list[ObjectHint] | None = None, hints_j: list[ObjectHint] | None = None,
                     dt: float = 0.0, base_i: np.ndarray | None = None,
-                    base_j: np.ndarray | None = None) -> PairFlow:
+                    base_j: np.ndarray | None = None, fill_hints_i: list[ObjectHint] | None = None) -> PairFlow:
     """The pseudo scene flow of one pair i -> j from its two dense flows (module doc).
 
     Args:
@@ -180,11 +189,14 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         base_i, base_j: the depth stage's maps of i and j where the object-depth stage rescaled
             ``depth_i``, ``depth_j`` (:class:`FrameInputs`); with both and FlowConfig.one_scale_per_pair,
             a match's depth is ``base_j``'s times frame i's scale ``depth_i / base_i`` (:func:`.lift.lift_flow`).
+        fill_hints_i: frame i's split radar objects (``FlowConfig.fill_split_objects``): the prediction of
+            rejected pixels that ``hints_i`` gives none.
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
     models: dict[str, int] = {}
     predicted = None
+    components_i = mask_i  # before the static returns' parts leave it: the components the objects claimed
     if config.radar_guided:
         geometry = PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt)
         forward, failed, models, static, predicted = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
@@ -221,6 +233,18 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         take = rejected & ~filled & np.isfinite(predicted).all(axis=-1)
         forward[take] = predicted[take]
         filled |= take
+        # A second mover whose returns the first one's velocity fit left as outliers has an object only
+        # among the split objects (an oncoming car passing the lead car within the clustering radius).
+        # Its rejected pixels take its prediction even where the fill or the first object's gave one:
+        # those came from the other mover.
+        known = [hint.uv for hint in hints_i or []]
+        further = [not any(np.array_equal(hint.uv, uv) for uv in known) for hint in fill_hints_i or []]
+        if config.fill_split_objects and any(further) and rejected.any():
+            guess = claimed_predictions(components_i, fill_hints_i,
+                                        PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt), config, further)
+            take = rejected & np.isfinite(guess).all(axis=-1)
+            forward[take] = guess[take]
+            filled |= take
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models, filled)
 
 
@@ -268,8 +292,12 @@ def run_flow_stage(scene, out_dir: Path, config: FlowConfig, progress: Callable[
     """``radar4dgs.apps.prepare`` stage runner: ``out_dir`` is the (temporary) ``<prepared>/flow`` folder,
     so depth and masks are read from its parent, the prepared folder."""
     summary = write_flow(scene, Path(out_dir), config, Path(out_dir).parent, progress=progress)
-    return {"pairs": summary["pairs"], "points": sum(p["points"] for p in summary["per_pair"]),
-            "models": summary["models"]}
+    result = {"pairs": summary["pairs"], "points": sum(p["points"] for p in summary["per_pair"]),
+              "models": summary["models"]}
+    if summary["radar_objects"] == "used" and summary["split_objects"].startswith("unavailable"):
+        result["note"] = (f"no second movers' predictions, {summary['split_objects']}; "
+                          f"`--only radar flow --force` adds them")
+    return result
 
 
 def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
@@ -294,6 +322,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     estimator = None if config.method == "oracle" else FlowEstimator(config)
     K = scene.camera.K
     objects, objects_note = _radar_objects(scene, prepared_dir, config)
+    split_objects, split_note = _split_objects(scene, prepared_dir, config, objects)
     hints: dict[int, list[ObjectHint]] = {}
     iterator = _with_progress(pairs, progress)
     per_pair = []
@@ -321,7 +350,8 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
             result = pair_scene_flow(
                 config, image_i, image_j, forward, backward, depth_i, depth_j, mask_i, mask_j, K,
                 scene.world_to_camera(i), scene.world_to_camera(j), hints.pop(i, None), hints.get(j),
-                scene.frames[j].timestamp - scene.frames[i].timestamp, base_i, base_j)
+                scene.frames[j].timestamp - scene.frames[i].timestamp, base_i, base_j,
+                None if split_objects is None else frame_hints(scene, i, split_objects[i]))
         name = scene.frames[i].name
         atomic_save_npz(out / f"{name}.npz", dict(
             flow=result.forward.astype(np.float32), consistent=result.consistent, reliable=result.reliable,
@@ -341,7 +371,7 @@ def write_flow(scene, out_dir: str | Path, config: FlowConfig | None = None,
     summary = {"pairs": len(pairs), "method": config.method,
                "flow_seconds_per_call": flow_seconds / max(2 * len(pairs), 1),
                "depth_source": config.depth_source, "mask_source": config.mask_source,
-               "radar_objects": objects_note, "models": totals, "per_pair": per_pair}
+               "radar_objects": objects_note, "split_objects": split_note, "models": totals, "per_pair": per_pair}
     atomic_write_json(out / "summary.json", summary)
     atomic_write_json(out / "config.json", to_dict(config))
     return summary
@@ -355,6 +385,17 @@ def _radar_objects(scene, prepared_dir: str | Path | None, config: FlowConfig) -
         return None, "off (radar_guided=False)"
     objects, why = optional_radar_objects(prepared_dir, len(scene))
     return objects, "used" if objects is not None else f"unavailable: {why}"
+
+
+def _split_objects(scene, prepared_dir: str | Path | None, config: FlowConfig, objects: list | None
+                   ) -> tuple[list | None, str]:
+    """The split radar objects for the fill of rejected pixels (``FlowConfig.fill_split_objects``; None
+    when off, without radar objects, or where the radar stage wrote none: a prepared folder from before
+    2026-12-05) and a note for the summary."""
+    if objects is None or not (config.fill_radar_prediction and config.fill_split_objects):
+        return None, "off"
+    split, why = optional_radar_objects(prepared_dir, len(scene), SPLIT_OBJECTS_FILE)
+    return split, "used" if split is not None else f"unavailable: {why}"
 
 
 def static_hints(scene, index: int, objects, config: FlowConfig, prepared_dir: str | Path) -> list[ObjectHint]:

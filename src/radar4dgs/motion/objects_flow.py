@@ -455,3 +455,43 @@ def fill_rejected_flow(flow: np.ndarray, mask: np.ndarray, lifted: np.ndarray, r
                                                        near_cols[target_rows, target_cols]]
         filled[box][target_rows, target_cols] = True
     return out, filled
+
+
+def claimed_predictions(mask: np.ndarray, hints: list[ObjectHint], geometry: PairGeometry,
+                        config: FlowConfig, wanted: list[bool] | None = None) -> np.ndarray:
+    """(H, W, 2) float32 the radar-predicted motion a -> b of each pixel of a mask component some
+    object of ``hints`` claims (:func:`.object_hints.component_claims`), NaN elsewhere; a component
+    several objects claim is split between them by their nearest return in 3-D
+    (:func:`.object_hints.split_by_returns`). No candidate is matched or chosen: this is the radar's
+    guess alone, for pixels whose flow failed the checks (``FlowConfig.fill_split_objects``).
+
+    Args:
+        mask: (H, W) bool dynamic mask of a. hints: a's radar objects. geometry: the pair.
+        wanted: one flag per hint: only the pixels of flagged objects get a prediction (all claimants
+            still share out their components). None: every object.
+    """
+    import cv2
+
+    predicted = np.full((*mask.shape, 2), np.nan, dtype=np.float32)
+    wanted = [True] * len(hints) if wanted is None else wanted
+    chosen = {id(hint) for hint, flag in zip(hints, wanted, strict=True) if flag}
+    hints = [hint for hint in hints if hint.track != STATIC_TRACK]
+    count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
+    if not hints or count <= 1:
+        return predicted
+    claims = component_claims(nearest_labels(labels, config.radar_association_radius), hints, config.radar_min_returns)
+    for label, claimants in claims.items():
+        rows, cols = np.nonzero(labels == label)
+        pixels = np.stack([cols, rows], axis=1)
+        depth = geometry.depth[rows, cols]
+        owner = np.zeros(len(pixels), dtype=np.int64)
+        if len(claimants) > 1 and all(hint.camera is not None and len(hint.camera) for hint in claimants):
+            owner = split_by_returns(pixels, depth, geometry.K, claimants)
+        for k, hint in enumerate(claimants):
+            part = owner == k
+            targets = None if not part.any() or id(hint) not in chosen else predicted_targets(
+                pixels[part], depth[part], geometry.K, geometry.world_to_cam_a, geometry.world_to_cam_b,
+                hint.velocity * geometry.dt)
+            if targets is not None:
+                predicted[rows[part], cols[part]] = targets - pixels[part]
+    return predicted
