@@ -189,8 +189,8 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         base_i, base_j: the depth stage's maps of i and j where the object-depth stage rescaled
             ``depth_i``, ``depth_j`` (:class:`FrameInputs`); with both and FlowConfig.one_scale_per_pair,
             a match's depth is ``base_j``'s times frame i's scale ``depth_i / base_i`` (:func:`.lift.lift_flow`).
-        fill_hints_i: frame i's split radar objects (``FlowConfig.fill_split_objects``): the prediction of
-            rejected pixels that ``hints_i`` gives none.
+        fill_hints_i: frame i's split radar objects (``FlowConfig.fill_split_objects``): each of them that
+            ``hints_i`` lacks (same projected returns) gives its rejected pixels its prediction.
     """
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
@@ -238,8 +238,9 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
         # Its rejected pixels take its prediction even where the fill or the first object's gave one:
         # those came from the other mover.
         known = [hint.uv for hint in hints_i or []]
-        further = [not any(np.array_equal(hint.uv, uv) for uv in known) for hint in fill_hints_i or []]
-        if config.fill_split_objects and any(further) and rejected.any():
+        further = ([not any(np.array_equal(hint.uv, uv) for uv in known) for hint in fill_hints_i]
+                   if config.fill_split_objects and fill_hints_i else [])
+        if any(further) and rejected.any():
             guess = claimed_predictions(components_i, fill_hints_i,
                                         PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt), config, further)
             take = rejected & np.isfinite(guess).all(axis=-1)
