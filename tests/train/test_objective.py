@@ -96,3 +96,21 @@ def test_static_gaussians_drawn_over_a_mover_from_in_front_lose_opacity_and_the_
     frozen = model.render(target.view, detach_static=True)
     assert "over_movers" not in image_losses(frozen, target, config, 2, ignore_dynamic=False)
     assert "over_movers" not in rendered_terms(preset(TrainConfig, "tiny"), model, target, 3, ignore_dynamic=True)[1]
+
+
+def test_dynamic_l1_weight_counts_each_mask_pixel_one_plus_w_times_and_only_where_the_movers_train():
+    model, target = car_too_deep(6.0)
+    render = model.render(target.view)
+    error = (render["rgb"] - target.image).abs().detach()
+    weight = 4.0
+    expected = (error.sum() + weight * error[target.dynamic].sum()) / error.numel()
+    config = preset(TrainConfig, "tiny", losses={"dynamic_l1_weight": weight})
+    weighted = float(image_losses(render, target, config, 2, ignore_dynamic=False)["l1"].detach())
+    assert weighted == pytest.approx(float(expected), rel=1e-6)
+    plain = float(image_losses(render, target, preset(TrainConfig, "tiny"), 2, ignore_dynamic=False)["l1"].detach())
+    assert plain == pytest.approx(float(error.mean()), rel=1e-6)
+    assert weighted > plain * 1.5  # the red car on grey: most of the error is on the mask
+    # Stage 1 scores the mask pixels against the render itself: the weight changes nothing there.
+    stage1 = image_losses(render, target, config, 1, ignore_dynamic=True)["l1"]
+    unweighted = image_losses(render, target, preset(TrainConfig, "tiny"), 1, ignore_dynamic=True)["l1"]
+    assert float(stage1.detach()) == pytest.approx(float(unweighted.detach()), rel=1e-6)
