@@ -107,10 +107,15 @@ def test_dynamic_l1_weight_counts_each_mask_pixel_one_plus_w_times_and_only_wher
     config = preset(TrainConfig, "tiny", losses={"dynamic_l1_weight": weight})
     weighted = float(image_losses(render, target, config, 2, ignore_dynamic=False)["l1"].detach())
     assert weighted == pytest.approx(float(expected), rel=1e-6)
-    plain = float(image_losses(render, target, preset(TrainConfig, "tiny"), 2, ignore_dynamic=False)["l1"].detach())
+    off = preset(TrainConfig, "tiny", losses={"dynamic_l1_weight": 0.0})
+    plain = float(image_losses(render, target, off, 2, ignore_dynamic=False)["l1"].detach())
     assert plain == pytest.approx(float(error.mean()), rel=1e-6)
+    # The baselines keep their own plain L1 whatever the weight.
+    pvg = preset(TrainConfig, "tiny", method="pvg", losses={"dynamic_l1_weight": weight})
+    baseline = float(image_losses(render, target, pvg, 2, ignore_dynamic=False)["l1"].detach())
+    assert baseline == pytest.approx(plain, rel=1e-6)
     assert weighted > plain * 1.5  # the red car on grey: most of the error is on the mask
     # Stage 1 scores the mask pixels against the render itself: the weight changes nothing there.
     stage1 = image_losses(render, target, config, 1, ignore_dynamic=True)["l1"]
-    unweighted = image_losses(render, target, preset(TrainConfig, "tiny"), 1, ignore_dynamic=True)["l1"]
+    unweighted = image_losses(render, target, off, 1, ignore_dynamic=True)["l1"]
     assert float(stage1.detach()) == pytest.approx(float(unweighted.detach()), rel=1e-6)

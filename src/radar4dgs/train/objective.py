@@ -5,7 +5,8 @@ not sky) + w_flow L_flow + w_rad L_rad + w_vel L_vel`` (the trainer's module doc
 with ``losses.over_movers_weight`` the static Gaussians drawn over movers (``static_over_movers``), plus,
 where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
 and with ``losses.dynamic_depth_weight`` a log-depth L1 on the dynamic-mask pixels where the image trains them.
-With ``losses.dynamic_l1_weight`` w each dynamic-mask pixel counts 1 + w times in L1.
+With ``losses.dynamic_l1_weight`` w (ours only; the baselines keep their own plain L1) each dynamic-mask pixel
+counts 1 + w times in L1.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
     if ignore_dynamic:
         image = torch.where(target.dynamic[..., None], rgb.detach(), image)
     absolute_error = (rgb - image).abs()
-    if config.losses.dynamic_l1_weight > 0 and not ignore_dynamic:
+    if config.losses.dynamic_l1_weight > 0 and config.method == "ours" and not ignore_dynamic:
         absolute_error = absolute_error * (1.0 + config.losses.dynamic_l1_weight * target.dynamic[..., None])
     losses = {"l1": absolute_error.mean(), "ssim": 1.0 - ssim_loss_value(rgb, image)}
     depth_valid = ~target.sky & ~target.dynamic if ignore_dynamic else ~target.sky
