@@ -1,5 +1,6 @@
 """The image terms of one iteration: the log-depth term on the dynamic-mask pixels (``losses.dynamic_depth_weight``)
-against a hand-computed value, and the way its gradient moves a dynamic Gaussian drawn too deep."""
+against a hand-computed value, and the way its gradient moves a dynamic Gaussian drawn too deep; the static
+Gaussians drawn over a mover; the moving pixels' extra L1 weight (``losses.dynamic_l1_weight``)."""
 
 from __future__ import annotations
 
