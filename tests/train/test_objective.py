@@ -1,12 +1,15 @@
 """The image terms of one iteration: the log-depth term on the dynamic-mask pixels (``losses.dynamic_depth_weight``)
 against a hand-computed value, and the way its gradient moves a dynamic Gaussian drawn too deep; the static
-Gaussians drawn over a mover; the moving pixels' extra L1 weight (``losses.dynamic_l1_weight``)."""
+Gaussians drawn over a mover; the moving pixels' extra L1 weight (``losses.dynamic_l1_weight``) and its widened mask."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import ndimage
 
 from radar4dgs.config import preset
 from radar4dgs.model.config import TrainConfig
@@ -15,7 +18,7 @@ from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.model.view import View
 from radar4dgs.train.data import FrameTargets
-from radar4dgs.train.objective import image_losses, loss_weights
+from radar4dgs.train.objective import dilate, image_losses, loss_weights
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -120,3 +123,27 @@ def test_dynamic_l1_weight_counts_each_mask_pixel_one_plus_w_times_and_only_wher
     stage1 = image_losses(render, target, config, 1, ignore_dynamic=True)["l1"]
     unweighted = image_losses(render, target, off, 1, ignore_dynamic=True)["l1"]
     assert float(stage1.detach()) == pytest.approx(float(unweighted.detach()), rel=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), radius=st.integers(0, 4), density=st.floats(0.0, 0.3))
+def test_dilate_is_scipys_square_maximum_filter(seed, radius, density):
+    mask = np.random.default_rng(seed).random((13, 17)) < density
+    expected = ndimage.maximum_filter(mask, size=2 * radius + 1, mode="constant", cval=False)
+    assert np.array_equal(dilate(torch.from_numpy(mask), radius).numpy() > 0.5, expected)
+
+
+def test_dynamic_l1_dilation_weighs_the_ring_around_the_mask_as_much_as_the_mask():
+    model, target = car_too_deep(6.0)
+    render = model.render(target.view)
+    error = (render["rgb"] - target.image).abs().detach()
+    weight, radius = 4.0, 2
+    widened = torch.zeros_like(target.dynamic)
+    widened[8 - radius:16 + radius, 12 - radius:20 + radius] = True  # the 8 x 8 car's mask, 2 px wider each side
+    expected = (error.sum() + weight * error[widened].sum()) / error.numel()
+    config = preset(TrainConfig, "tiny", losses={"dynamic_l1_weight": weight, "dynamic_l1_dilation": radius})
+    widened_l1 = float(image_losses(render, target, config, 2, ignore_dynamic=False)["l1"].detach())
+    assert widened_l1 == pytest.approx(float(expected), rel=1e-6)
+    narrow = preset(TrainConfig, "tiny", losses={"dynamic_l1_weight": weight})
+    assert widened_l1 > float(image_losses(render, target, narrow, 2, ignore_dynamic=False)["l1"].detach())
+

@@ -6,7 +6,7 @@ with ``losses.over_movers_weight`` the static Gaussians drawn over movers (``sta
 where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
 and with ``losses.dynamic_depth_weight`` a log-depth L1 on the dynamic-mask pixels where the image trains them.
 With ``losses.dynamic_l1_weight`` w (ours only; the baselines keep their own plain L1) each dynamic-mask pixel
-counts 1 + w times in L1.
+counts 1 + w times in L1; ``losses.dynamic_l1_dilation`` widens that mask by a few pixels.
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
         image = torch.where(target.dynamic[..., None], rgb.detach(), image)
     absolute_error = (rgb - image).abs()
     if config.losses.dynamic_l1_weight > 0 and config.method == "ours" and not ignore_dynamic:
-        absolute_error = absolute_error * (1.0 + config.losses.dynamic_l1_weight * target.dynamic[..., None])
+        weighted = dilate(target.dynamic, config.losses.dynamic_l1_dilation)
+        absolute_error = absolute_error * (1.0 + config.losses.dynamic_l1_weight * weighted[..., None])
     losses = {"l1": absolute_error.mean(), "ssim": 1.0 - ssim_loss_value(rgb, image)}
     depth_valid = ~target.sky & ~target.dynamic if ignore_dynamic else ~target.sky
     losses["depth"] = inverse_depth_l1(render["depth"], render["alpha"], target.depth, depth_valid)
@@ -58,6 +59,14 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
     if stage == 3:
         losses["object"] = binary_cross_entropy(render["dynamic"], target.dynamic)
     return losses
+
+
+def dilate(mask: Tensor, radius: int) -> Tensor:
+    """``mask`` (H, W) bool widened by ``radius`` pixels (a square max filter); float (H, W)."""
+    mask = mask.to(torch.float32)
+    if radius <= 0:
+        return mask
+    return torch.nn.functional.max_pool2d(mask[None, None], 2 * radius + 1, stride=1, padding=radius)[0, 0]
 
 
 def over_movers(render: dict[str, Any], target: FrameTargets, margin: float) -> Tensor | None:
