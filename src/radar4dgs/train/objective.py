@@ -62,10 +62,13 @@ def image_losses(render: dict[str, Any], target: FrameTargets, config: TrainConf
 
 
 def dilate(mask: Tensor, radius: int) -> Tensor:
-    """``mask`` (H, W) bool widened by ``radius`` pixels (a square max filter); float (H, W)."""
+    """``mask`` (H, W) bool widened by ``radius`` pixels (a square max filter), narrowed by ``-radius`` where
+    it is negative (the max filter of the complement); float (H, W)."""
     mask = mask.to(torch.float32)
-    if radius <= 0:
+    if radius == 0:
         return mask
+    if radius < 0:
+        return 1.0 - dilate(mask < 0.5, -radius)
     return torch.nn.functional.max_pool2d(mask[None, None], 2 * radius + 1, stride=1, padding=radius)[0, 0]
 
 
