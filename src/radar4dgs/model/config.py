@@ -172,8 +172,8 @@ class LossConfig:
     # A car covers about 2 % of a frame. At 3, hard tuning seeds 234-236 x two training seeds at full small:
     # novel-view PSNR* +0.91 dB, PSNR -0.07; at 10: +1.51 / -0.27 (docs: Training, weighting the moving pixels).
     dynamic_l1_weight: float = 3.0
-    # Pixels by which that weight's mask is widened (a max filter at the training resolution; negative: narrowed,
-    # so the weight stays off the car's edge); 0 = the mask itself.
+    # Pixels by which that weight's mask is widened (a max filter at the training resolution; negative: narrowed);
+    # 0 = the mask as prepared. At weight 10, +6 and -2 px each lost 0.8-1.7 dB PSNR* on hard tuning pairs.
     dynamic_l1_dilation: int = 0
     # lambda_d: inverse-depth L1 against the radar-scaled prepared depth (non-sky pixels).
     depth_weight: float = 0.1

@@ -6,7 +6,7 @@ with ``losses.over_movers_weight`` the static Gaussians drawn over movers (``sta
 where the run refines poses or appearance, ``w_s L_pose_smooth + w_p L_pose_prior + w_a L_app``,
 and with ``losses.dynamic_depth_weight`` a log-depth L1 on the dynamic-mask pixels where the image trains them.
 With ``losses.dynamic_l1_weight`` w (ours only; the baselines keep their own plain L1) each dynamic-mask pixel
-counts 1 + w times in L1; ``losses.dynamic_l1_dilation`` widens that mask by a few pixels.
+counts 1 + w times in L1; ``losses.dynamic_l1_dilation`` widens (or narrows) that mask by a few pixels.
 """
 
 from __future__ import annotations
