@@ -3,6 +3,7 @@ of live runs and of other hosts are kept."""
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -13,11 +14,13 @@ from radar4dgs.io import atomic
 from radar4dgs.io.atomic import (
     HOST,
     TEMP_NAME,
+    OutputWriteError,
     atomic_directory,
     atomic_path,
     atomic_save_npz,
     atomic_save_torch,
     dead_temporary,
+    output_write_error,
     pid_alive,
     remove_dead_temporaries,
 )
@@ -117,3 +120,17 @@ def test_a_compressed_npz_is_smaller(tmp_path):
     zeros = {"zeros": np.zeros((200, 200))}
     compressed = atomic_save_npz(tmp_path / "compressed.npz", zeros).stat().st_size
     assert compressed * 10 < atomic_save_npz(tmp_path / "plain.npz", zeros, compressed=False).stat().st_size
+
+
+def test_numpys_short_write_inside_an_atomic_folder_is_a_full_disk_named_by_the_folder(tmp_path):
+    # np.save of a large array reports a full disk as "N requested and M written", with no errno.
+    target = tmp_path / "prepared" / "depth"
+    with pytest.raises(OutputWriteError) as caught, atomic_directory(target):
+        raise OSError("57600 requested and 8160 written")
+    assert caught.value.errno == errno.ENOSPC
+    assert str(caught.value).startswith(f"{target.parent}: disk full, cannot write depth/ (no space left: 57600 "
+                                        "requested and 8160 written); the previous outputs there are untouched")
+    assert not target.exists()
+    other = OSError("something else")
+    assert output_write_error(tmp_path, "x", other) is other
+

@@ -40,6 +40,7 @@ TEMP_NAME = re.compile(r"^\.(?P<target>.+)\.(?P<pid>[0-9]+)@(?P<host>[A-Za-z0-9-
 _CLEANED: set[Path] = set()
 # Why a write fails for want of room or of write access, as the one-line message says it.
 _NO_ROOM = {errno.ENOSPC: "disk full", getattr(errno, "EDQUOT", errno.ENOSPC): "disk full (quota exceeded)"}
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
 _NO_WRITE = {errno.EROFS: "read-only file system", errno.EACCES: "read-only (permission denied)",
              errno.EPERM: "read-only (operation not permitted)"}
 
@@ -57,6 +58,9 @@ def output_write_error(folder: str | os.PathLike, name: str, exc: OSError) -> OS
     (``FOLDER: disk full (no space left writing NAME); ...``), else ``exc`` itself."""
     if isinstance(exc, OutputWriteError):
         return exc
+    if exc.errno is None and _SHORT_WRITE.fullmatch(str(exc)):
+        # numpy's tofile (np.save of a large array) reports a full disk as a short write, without errno.
+        exc = OSError(errno.ENOSPC, f"no space left: {exc}")
     why = _NO_ROOM.get(exc.errno) or _NO_WRITE.get(exc.errno)
     if why is None:
         return exc
