@@ -133,4 +133,3 @@ def test_numpys_short_write_inside_an_atomic_folder_is_a_full_disk_named_by_the_
     assert not target.exists()
     other = OSError("something else")
     assert output_write_error(tmp_path, "x", other) is other
-
