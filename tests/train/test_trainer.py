@@ -413,30 +413,3 @@ def test_coarse_to_fine_renders_early_iterations_at_the_coarse_scale(prepared, t
     sizes = [h["width"] for h in state.history if "total" in h]
     assert sizes == [coarse.view.width] * 3 + [full.view.width] * 3
 
-
-
-def test_frames_are_drawn_by_their_moving_pixels_from_stage_2_only(prepared, tmp_path):
-    import imageio.v3 as iio
-
-    from radar4dgs.io.scene import read_scene
-    from radar4dgs.train.determinism import frame_order, frame_probabilities, training_frame
-
-    scene_dir, prep = prepared
-    config = tiny_config(optim={"iterations": 12, "dynamic_frame_weight": 4.0}, densify={"every": 0})
-    trainer = Trainer(scene_dir, prep, tmp_path / "run", config, progress=False)
-    state = trainer.train()
-    scene = read_scene(scene_dir)
-    fractions = np.array([(iio.imread(prep / "masks" / f"{scene.frames[i].name}.png") > 127).mean()
-                          for i in scene.train_indices])
-    assert fractions.max() > fractions.min() > 0  # the frames differ in moving content
-    np.testing.assert_allclose(trainer.frame_probabilities, frame_probabilities(fractions, 4.0))
-    n, names = len(fractions), [scene.frames[i].name for i in scene.train_indices]
-    drawn = {h["step"]: h["frame"] for h in state.history if "total" in h}
-    stage2 = config.stage_at(0) < 2 and min(s for s in range(12) if config.stage_at(s) >= 2)
-    for step, frame in drawn.items():
-        expected = training_frame(config.seed, step, n, trainer.frame_probabilities) if step >= stage2 \
-            else int(frame_order(config.seed, step // n, n)[step % n])
-        assert frame == names[expected]
-    plain = Trainer(scene_dir, prep, tmp_path / "plain", tiny_config(optim={"iterations": 1}), progress=False)
-    plain.train()
-    assert plain.frame_probabilities is None

@@ -249,11 +249,6 @@ class OptimConfig:
     # dropout_until of the run, so the model settles on the opacities it is evaluated with.
     dropout: float = 0.1
     dropout_until: float = 0.9
-    # Ours, from stage 2 on: draw each iteration's training frame with probability proportional to
-    # 1 + this x (its dynamic-mask pixel fraction / the mean fraction) instead of in a shuffled order.
-    # Adam steps a dynamic copy by about its learning rate per visit whatever the loss weight, so the
-    # copies of a car seen in few frames are stepped few times. 0 = the shuffled order (default).
-    dynamic_frame_weight: float = 0.0
 
 
 @dataclass

@@ -53,7 +53,7 @@ from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.radar.sync import prepared_synced_scene
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
-from radar4dgs.train.determinism import frame_probabilities, step_generator, training_frame
+from radar4dgs.train.determinism import frame_order, step_generator
 from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.model_init import (
     dynamic_gaussians,
@@ -151,10 +151,6 @@ class Trainer:
             if self.config.coarse_scale < 1.0 and self.config.coarse_until > 0 else self.targets
         self.motion = load_motion_targets(self.scene, self.prepared, self.config) \
             if self.config.method == "ours" else None
-        weight = self.config.optim.dynamic_frame_weight
-        self.frame_probabilities = frame_probabilities(
-            np.array([self.masks[i].mean() for i in self.train_indices]), weight) \
-            if weight > 0 and self.config.method == "ours" else None
 
     def _initial_points(self) -> dict[str, np.ndarray]:
         """The back-projected training frames (deterministic given the init seed), computed once:
@@ -392,7 +388,7 @@ class Trainer:
         set_refine_learning_rates(state.optimizers, config, step)
         n = len(self.targets)
         targets = self.coarse_targets if step < config.coarse_until * config.optim.iterations else self.targets
-        row = training_frame(config.seed, step, n, self.frame_probabilities if stage >= 2 else None)
+        row = int(frame_order(config.seed, step // n, n)[step % n])
         target = targets[row]
         generator = step_generator(config.seed, step)
         model = state.model
