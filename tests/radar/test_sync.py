@@ -3,10 +3,15 @@ a constant speed is reported unobservable."""
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from radar4dgs.radar.sync import estimate_time_offset, pose_speeds
+from radar4dgs.radar.sync import estimate_time_offset, offset_cost, pose_speeds
 
 
 def straight_drive(times: np.ndarray) -> np.ndarray:
@@ -45,3 +50,19 @@ def test_a_constant_speed_leaves_the_offset_unobservable():
     pose_times, pose_speed = pose_speeds(times, poses)
     result = estimate_time_offset(times, np.full(len(times), 25.0), pose_times, pose_speed)
     assert not result["observable"] and result["offset_s"] is None and result["rmse"] < 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(5.0, 7.0), min_size=6, max_size=6), st.lists(st.floats(5.0, 7.0), min_size=5, max_size=5))
+def test_a_short_drive_scans_without_warnings_and_keeps_the_best_offset(radar_speeds, pose_speed):
+    # Six radar samples against five pose speeds: offsets of more than 0.15 s leave under four samples
+    # overlapping, so the scan's finite costs end inside it, where the refinement must not step past.
+    radar_times, pose_times = np.arange(6) * 0.1, 0.05 + np.arange(5) * 0.1
+    args = (radar_times, np.array(radar_speeds), pose_times, np.array(pose_speed))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = estimate_time_offset(*args)
+    offset = result["offset_s"] if result["offset_s"] is not None else result["best_scanned_s"]
+    grid = np.arange(-0.2, 0.2 + 0.001, 0.002)
+    best_scanned = min(offset_cost(o, *args) for o in grid)
+    assert math.isfinite(offset_cost(offset, *args)) and offset_cost(offset, *args) <= best_scanned + 1e-12

@@ -74,10 +74,16 @@ def estimate_time_offset(radar_times: np.ndarray, radar_speeds: np.ndarray, pose
     if not finite.any():
         return result
     best = int(np.nanargmin(np.where(finite, costs, np.nan)))
-    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
-    refined = minimize_scalar(offset_cost, bounds=(lo, hi), method="bounded",
-                              args=(radar_times, radar_speeds, pose_times, pose_speed), options={"xatol": 1e-5})
-    offset = float(refined.x) if refined.fun <= costs[best] else float(grid[best])
+    # Refine between finite neighbours only: on a short drive the overlap runs out inside the scan, and
+    # the bounded search would difference infinite costs (a NaN step and a RuntimeWarning).
+    lo = grid[best - 1] if best > 0 and finite[best - 1] else grid[best]
+    hi = grid[best + 1] if best + 1 < len(grid) and finite[best + 1] else grid[best]
+    offset = float(grid[best])
+    if hi > lo:
+        refined = minimize_scalar(offset_cost, bounds=(lo, hi), method="bounded",
+                                  args=(radar_times, radar_speeds, pose_times, pose_speed), options={"xatol": 1e-5})
+        if refined.fun <= costs[best]:
+            offset = float(refined.x)
     zero = offset_cost(0.0, radar_times, radar_speeds, pose_times, pose_speed)
     result.update(offset_s=offset, rmse=math.sqrt(offset_cost(offset, radar_times, radar_speeds, pose_times,
                                                               pose_speed)),

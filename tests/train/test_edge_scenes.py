@@ -1,0 +1,58 @@
+"""Scenes outside the generator's defaults, prepared and trained end to end: nothing moves, or the ego
+stands still among moving traffic (a red light). Both happen in real drives."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from radar4dgs.apps.prepare import PrepareConfig, run_prepare
+from radar4dgs.config import preset
+from radar4dgs.datasets.synth import SynthConfig, synthesize
+from radar4dgs.io.scene import read_scene
+from radar4dgs.metrics.image import psnr
+from radar4dgs.model.config import TrainConfig
+from radar4dgs.train.trainer import Trainer, train_run
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+EDGE_SCENES = {
+    "nothing-moves": {"moving_cars": (0, 0), "crossing_probability": 0.0},
+    "ego-stands-still": {"ego_speed": (0.0, 0.0)},
+}
+
+
+# A NaN on the way (a RuntimeWarning from numpy or scipy) fails the test too.
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.parametrize("name", sorted(EDGE_SCENES))
+def test_edge_scene_prepares_and_trains_better_than_its_start(name, tmp_path):
+    scene_dir = tmp_path / "scene"
+    synthesize(preset(SynthConfig, "tiny", seed=3, num_frames=6, **EDGE_SCENES[name]), scene_dir, progress=False)
+    scene = read_scene(scene_dir)
+    moving = sum(int((scene.load_optional("gt/dynamic_mask", i) > 0).sum()) for i in range(len(scene)))
+    assert (moving == 0) == (name == "nothing-moves")
+    run_prepare(scene_dir, None, preset(PrepareConfig, "tiny"), progress=False)
+    prepared = scene_dir / "prepared"
+    centres = [np.linalg.inv(scene.world_to_camera(i))[:3, 3] for i in range(len(scene))]
+    travelled = max(float(np.linalg.norm(c - centres[0])) for c in centres)
+    assert (travelled < 1e-6) == (name == "ego-stands-still")
+
+    config = preset(TrainConfig, "tiny", optim={"iterations": 24}, checkpoint_every=0, log_every=1, threads=1,
+                    init={"points_per_frame": 600, "max_static": 3000, "max_dynamic": 600},
+                    losses={"motion_batch": 64, "radar_points_per_frame": 100})
+    state = train_run(scene_dir, prepared, tmp_path / "run", config, progress=False)
+    logged = [h for h in state.history if "total" in h]
+    assert {h["stage"] for h in logged} == {1, 2, 3} and all(math.isfinite(h["total"]) for h in logged)
+    trainer = Trainer(scene_dir, prepared, tmp_path / "unused", config, progress=False)
+    trainer._load()
+    initial = trainer._fresh_state().model
+
+    def mean_psnr(model):
+        with torch.no_grad():
+            return np.mean([psnr(model.render(t.view, directions=t.directions)["rgb"].clamp(0, 1), t.image)
+                            for t in trainer.targets])
+
+    assert mean_psnr(state.model) > mean_psnr(initial) + 1.0
