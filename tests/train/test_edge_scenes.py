@@ -7,15 +7,14 @@ import math
 
 import numpy as np
 import pytest
-import torch
+from _prepared import trained_and_initial_psnr
 
 from radar4dgs.apps.prepare import PrepareConfig, run_prepare
 from radar4dgs.config import preset
 from radar4dgs.datasets.synth import SynthConfig, synthesize
 from radar4dgs.io.scene import read_scene
-from radar4dgs.metrics.image import psnr
 from radar4dgs.model.config import TrainConfig
-from radar4dgs.train.trainer import Trainer, train_run
+from radar4dgs.train.trainer import train_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -46,13 +45,5 @@ def test_edge_scene_prepares_and_trains_better_than_its_start(name, tmp_path):
     state = train_run(scene_dir, prepared, tmp_path / "run", config, progress=False)
     logged = [h for h in state.history if "total" in h]
     assert {h["stage"] for h in logged} == {1, 2, 3} and all(math.isfinite(h["total"]) for h in logged)
-    trainer = Trainer(scene_dir, prepared, tmp_path / "unused", config, progress=False)
-    trainer._load()
-    initial = trainer._fresh_state().model
-
-    def mean_psnr(model):
-        with torch.no_grad():
-            return np.mean([psnr(model.render(t.view, directions=t.directions)["rgb"].clamp(0, 1), t.image)
-                            for t in trainer.targets])
-
-    assert mean_psnr(state.model) > mean_psnr(initial) + 1.0
+    trained, initial = trained_and_initial_psnr(scene_dir, prepared, state.model, config, tmp_path / "unused")
+    assert trained > initial + 1.0

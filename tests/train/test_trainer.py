@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 import torch
-from _prepared import prepared_tiny_scene
+from _prepared import prepared_tiny_scene, trained_and_initial_psnr
 
 from radar4dgs.config import preset
-from radar4dgs.metrics.image import psnr
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.field import randomize_
 from radar4dgs.model.gaussians import GaussianSet
@@ -139,16 +138,8 @@ def test_training_runs_all_stages_and_improves(prepared, tmp_path):
     assert all(math.isfinite(h["total"]) for h in logged)
     assert state.model.dynamic is not None and len(state.model.dynamic) > 0
     # Training frames are rendered better than by the initial Gaussians.
-    trainer = Trainer(scene, prep, tmp_path / "unused", config, progress=False)
-    trainer._load()
-    initial = trainer._fresh_state().model
-
-    def mean_psnr(model):
-        with torch.no_grad():
-            return np.mean([psnr(model.render(t.view, directions=t.directions)["rgb"].clamp(0, 1), t.image)
-                            for t in trainer.targets])
-
-    assert mean_psnr(state.model) > mean_psnr(initial) + 1.0
+    trained, initial = trained_and_initial_psnr(scene, prep, state.model, config, tmp_path / "unused")
+    assert trained > initial + 1.0
     assert (tmp_path / "run" / "model.pt").is_file() and (tmp_path / "run" / "config.json").is_file()
     assert any("densify" in h for h in state.history)
     model = load_model(tmp_path / "run" / "model.pt")
