@@ -7,13 +7,9 @@ import math
 
 import numpy as np
 import pytest
-from _prepared import trained_and_initial_psnr
+from _prepared import prepared_tiny_scene, tiny_config, trained_and_initial_psnr
 
-from radar4dgs.apps.prepare import PrepareConfig, run_prepare
-from radar4dgs.config import preset
-from radar4dgs.datasets.synth import SynthConfig, synthesize
 from radar4dgs.io.scene import read_scene
-from radar4dgs.model.config import TrainConfig
 from radar4dgs.train.trainer import train_run
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -28,20 +24,15 @@ EDGE_SCENES = {
 @pytest.mark.filterwarnings("error::RuntimeWarning")
 @pytest.mark.parametrize("name", sorted(EDGE_SCENES))
 def test_edge_scene_prepares_and_trains_better_than_its_start(name, tmp_path):
-    scene_dir = tmp_path / "scene"
-    synthesize(preset(SynthConfig, "tiny", seed=3, num_frames=6, **EDGE_SCENES[name]), scene_dir, progress=False)
+    scene_dir, prepared = prepared_tiny_scene(tmp_path, seed=3, num_frames=6, **EDGE_SCENES[name])
     scene = read_scene(scene_dir)
     moving = sum(int((scene.load_optional("gt/dynamic_mask", i) > 0).sum()) for i in range(len(scene)))
     assert (moving == 0) == (name == "nothing-moves")
-    run_prepare(scene_dir, None, preset(PrepareConfig, "tiny"), progress=False)
-    prepared = scene_dir / "prepared"
     centres = [np.linalg.inv(scene.world_to_camera(i))[:3, 3] for i in range(len(scene))]
     travelled = max(float(np.linalg.norm(c - centres[0])) for c in centres)
     assert (travelled < 1e-6) == (name == "ego-stands-still")
 
-    config = preset(TrainConfig, "tiny", optim={"iterations": 24}, checkpoint_every=0, log_every=1, threads=1,
-                    init={"points_per_frame": 600, "max_static": 3000, "max_dynamic": 600},
-                    losses={"motion_batch": 64, "radar_points_per_frame": 100})
+    config = tiny_config(checkpoint_every=0)
     state = train_run(scene_dir, prepared, tmp_path / "run", config, progress=False)
     logged = [h for h in state.history if "total" in h]
     assert {h["stage"] for h in logged} == {1, 2, 3} and all(math.isfinite(h["total"]) for h in logged)

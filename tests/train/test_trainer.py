@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from _prepared import prepared_tiny_scene, trained_and_initial_psnr
+from _prepared import prepared_tiny_scene, tiny_config, trained_and_initial_psnr
 
 from radar4dgs.config import preset
 from radar4dgs.model.config import TrainConfig
@@ -25,19 +25,6 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 @pytest.fixture(scope="module")
 def prepared(tmp_path_factory):
     return prepared_tiny_scene(tmp_path_factory.mktemp("train"), seed=2)
-
-
-def tiny_config(**overrides) -> TrainConfig:
-    values = {"optim": {"iterations": 24}, "checkpoint_every": 8, "log_every": 1,
-              "init": {"points_per_frame": 600, "max_static": 3000, "max_dynamic": 600},
-              "densify": {"every": 6, "start": 0.0, "stop": 1.0, "grad_threshold": 1e-6, "max_gaussians": 4000},
-              "losses": {"motion_batch": 64, "radar_points_per_frame": 100}, "threads": 1}
-    for key, value in overrides.items():
-        if isinstance(value, dict):
-            values.setdefault(key, {}).update(value)
-        else:
-            values[key] = value
-    return preset(TrainConfig, "tiny", **values)
 
 
 # ---- pure pieces --------------------------------------------------------------------------
