@@ -19,6 +19,7 @@ import json
 import math
 import re
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -45,13 +46,14 @@ PYTHON_WARNING = re.compile(r"\b\w*Warning: ")
 
 
 def variant_commands(scene: Path, synth_options: list[str]) -> list[list[str]]:
-    """The five commands of one variant, in order."""
+    """The five commands of one variant, in order, each run with this script's interpreter."""
     run = scene / "run"
-    return [["radar4dgs", "synth", str(scene), "--preset", "tiny", "--seed", "3", *synth_options],
-            ["radar4dgs", "prepare", str(scene), "--preset", "tiny", "--quiet"],
-            ["radar4dgs", "frontend-eval", str(scene)],
-            ["radar4dgs", "train", str(scene), "--out", str(run), "--preset", "tiny", "--quiet"],
-            ["radar4dgs", "eval", str(run)]]
+    cli = [sys.executable, "-m", "radar4dgs.cli"]
+    return [[*cli, "synth", str(scene), "--preset", "tiny", "--seed", "3", *synth_options],
+            [*cli, "prepare", str(scene), "--preset", "tiny", "--quiet"],
+            [*cli, "frontend-eval", str(scene)],
+            [*cli, "train", str(scene), "--out", str(run), "--preset", "tiny", "--quiet"],
+            [*cli, "eval", str(run)]]
 
 
 def run_variant(name: str, work: Path, timeout: float) -> dict:
@@ -66,20 +68,21 @@ def run_variant(name: str, work: Path, timeout: float) -> dict:
             try:
                 done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
             except subprocess.TimeoutExpired:
-                result["failed_at"] = " ".join(command[:2]) + f" (timed out after {timeout:g} s)"
+                result["failed_at"] = f"radar4dgs {command[3]} (timed out after {timeout:g} s)"
                 return result
             output = done.stdout + done.stderr
             result["python_warnings"] += [line for line in output.splitlines() if PYTHON_WARNING.search(line)]
             if done.returncode != 0:
-                result["failed_at"] = " ".join(command[:2]) + f" (exit {done.returncode}): {output.strip()[-300:]}"
+                result["failed_at"] = f"radar4dgs {command[3]} (exit {done.returncode}): {output.strip()[-300:]}"
                 return result
         result["seconds"] = round(time.perf_counter() - start, 1)
     metrics = json.loads(metrics_path.read_text())
+    finite = True
     for split in ("recon", "nvs"):
         for key in ("psnr", "psnr_dyn"):
             value = metrics[split].get(key)
+            finite = finite and (value is None or math.isfinite(value))
             result[f"{split}_{key}"] = None if value is None else round(value, 2)
-    finite = all(v is None or math.isfinite(v) for k, v in result.items() if k.endswith(("psnr", "psnr_dyn")))
     result["ok"] = finite and not result["python_warnings"]
     return result
 
