@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -102,3 +102,21 @@ def render(world: W.World, config: SynthConfig, K: np.ndarray, cam_to_ego_m: np.
             flow_road[sel] = apply(motion, points[sel]) - points[sel]
     flow = flow_road @ world.road_to_world[:3, :3].T
     return CameraFrame(image, hits.t.astype(np.float32), sky, dynamic, flow.astype(np.float32), points, obj_map)
+
+
+def supersampled_image(world: W.World, config: SynthConfig, cam_to_ego_m: np.ndarray, time: float, dt: float,
+                       rng: np.random.Generator) -> np.ndarray:
+    """(H, W, 3) uint8 image whose every pixel is the mean of ``config.supersample``² rays over it.
+
+    The scene is rendered noise-free at ``supersample`` times the size (the intrinsics of that size put the
+    fine pixel centres symmetric inside each coarse pixel, and the texture footprint shrinks with them), each
+    block of fine pixels is averaged, then the pixel noise is added once, as a sensor adds it.
+    """
+    factor = config.supersample
+    fine = replace(config, width=config.width * factor, height=config.height * factor, image_noise_std=0.0)
+    K_fine = intrinsics(fine)
+    view = render(world, fine, K_fine, cam_to_ego_m, pixel_rays(K_fine, fine.width, fine.height), time, dt, rng)
+    # Averaging the fine image's 8-bit values adds at most half a level of rounding, below the sensor noise.
+    mean = view.image.astype(np.float64).reshape(config.height, factor, config.width, factor, 3).mean(axis=(1, 3))
+    noise = rng.normal(0.0, config.image_noise_std, mean.shape) if config.image_noise_std > 0 else 0.0
+    return np.clip(np.round(mean + noise), 0, 255).astype(np.uint8)

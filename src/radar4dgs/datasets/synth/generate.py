@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ def validate(config: SynthConfig) -> None:
         (config.seed >= 0, f"seed must be >= 0, got {config.seed}"),
         (config.width >= 8 and config.height >= 8, f"image must be at least 8x8, got {config.width}x{config.height}"),
         (config.num_frames >= 1, f"num_frames must be >= 1, got {config.num_frames}"),
+        (config.supersample >= 1, f"supersample must be >= 1, got {config.supersample}"),
         (config.fps > 0, f"fps must be > 0, got {config.fps}"),
         (0 < config.hfov_deg < 170, f"hfov_deg must be in (0, 170), got {config.hfov_deg}"),
         (config.camera_xyz[2] > 0, "camera_xyz z must be above the road (> 0)"),
@@ -157,6 +159,9 @@ def synthesize(config: SynthConfig, out: Path, overwrite: bool = False, progress
             time = float(times[i])
             view = C.render(world, config, K, cam_to_ego, rays, time, dt,
                             np.random.default_rng([config.seed, _CAMERA, i]))
+            if config.supersample > 1:
+                view = replace(view, image=C.supersampled_image(world, config, cam_to_ego, time, dt,
+                                                                np.random.default_rng([config.seed, _CAMERA, i])))
             scan = R.simulate(world, config.radar, mount, time, np.random.default_rng([config.seed, _RADAR, i]))
             lidar = L.simulate(world, config.lidar, time, np.random.default_rng([config.seed, _LIDAR, i]))
             prior_rng = np.random.default_rng([config.seed, _PRIOR, i])
