@@ -10,12 +10,15 @@ from radar4dgs.datasets.synth import SynthConfig, traffic_profile
 from radar4dgs.train.variants import merge
 
 
-def synth_config(preset_name: str, seed: int, traffic: str = "calm", fps: float | None = None) -> SynthConfig:
-    """The preset's SynthConfig for ``seed`` with traffic profile ``traffic`` and frame rate ``fps``
-    (None: the preset's)."""
+def synth_config(preset_name: str, seed: int, traffic: str = "calm", fps: float | None = None,
+                 supersample: int = 1) -> SynthConfig:
+    """The preset's SynthConfig for ``seed`` with traffic profile ``traffic``, frame rate ``fps`` (None: the
+    preset's) and ``supersample`` x ``supersample`` rays a pixel."""
     overrides: dict = {} if traffic == "calm" else {"traffic": traffic_profile(traffic)}
     if fps is not None:
         overrides["fps"] = fps
+    if supersample != 1:
+        overrides["supersample"] = supersample
     return preset(SynthConfig, preset_name, seed=seed, **overrides)
 
 

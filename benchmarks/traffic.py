@@ -34,7 +34,7 @@ RESULTS = Path(__file__).parent / "results"
 
 
 def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, work: Path,
-                  prepare_set: list[str] = ()) -> tuple[Path, dict]:
+                  prepare_set: list[str] = (), supersample: int = 1) -> tuple[Path, dict]:
     """Synthesize (traffic profile, fps) and prepare one scene into work/scenes/<label>/ (PrepareConfig
     fields overridden by dotted ``prepare_set`` items); reused."""
     from radar4dgs.apps.prepare import run_prepare
@@ -42,10 +42,11 @@ def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, 
     from radar4dgs.io.preview import dynamic_motion_statistics
     from radar4dgs.io.scene import read_scene
 
-    label = f"{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz")
+    label = (f"{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz")
+             + ("" if supersample == 1 else f"-ss{supersample}"))
     scene = work / "scenes" / label
     if not (scene / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
+        synthesize(synth_config(preset_name, seed, traffic, fps, supersample), scene, overwrite=True, progress=False,
                    preset=preset_name)
     run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     return scene, dynamic_motion_statistics(read_scene(scene))
@@ -80,6 +81,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", required=True)
     parser.add_argument("--traffic", choices=("calm", "realistic", "rush"), default="rush")
     parser.add_argument("--fps", type=float, default=None, help="frame rate of the scenes (default: the preset's)")
+    parser.add_argument("--supersample", type=int, default=1,
+                        help="rays a pixel along each axis in the synthesized images (default 1, the pixel centre)")
     parser.add_argument("--preset", default="small")
     parser.add_argument("--methods", nargs="+", default=["ours", "ours-no-radar", "pvg", "bspline"])
     parser.add_argument("--iterations", type=int, default=600)
@@ -99,7 +102,8 @@ def main() -> None:
                        "prepare_set": args.prepare_set},
               "scenes": {}}
     for seed in args.seeds:
-        scene, motion = prepare_scene(seed, args.traffic, args.fps, args.preset, args.work, args.prepare_set)
+        scene, motion = prepare_scene(seed, args.traffic, args.fps, args.preset, args.work, args.prepare_set,
+                                      args.supersample)
         grid = args.work / args.grid
         subprocess.run([sys.executable, "-m", "radar4dgs.cli", "bench", "--scenes", str(scene), "--methods",
                         *args.methods, "--out", str(grid), "--preset", args.preset, "--iterations",
