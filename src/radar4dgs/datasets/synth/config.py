@@ -166,7 +166,7 @@ class SynthConfig:
     crossing_probability: float = 0.7  # chance that one moving car crosses at the intersection ahead
     image_noise_std: float = 1.0  # Gaussian pixel noise (8-bit units)
     # Each pixel's colour is the mean of supersample x supersample rays spread over it, as a camera integrates
-    # light over its pixel; 1 (the default, as every measurement so far) samples the pixel centre once, so
+    # light over its pixel; 1 (the default, which every recorded benchmark uses) samples the pixel centre once, so
     # thin features (a car roof seen edge-on, a lane line far off) appear and vanish between frames. Only
     # the image changes: gt/ (depth, masks, flow) stays that of the pixel centre.
     supersample: int = 1
