@@ -15,8 +15,7 @@ from scipy.ndimage import binary_erosion
 
 from radar4dgs.cli import main
 from radar4dgs.config import preset
-from radar4dgs.datasets.synth import SynthConfig, synthesize
-from radar4dgs.datasets.synth.config import traffic_profile
+from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
 from radar4dgs.io import read_scene
 
 EXACT_RADAR = {"range_std": 0.0, "azimuth_std_deg": 0.0, "elevation_std_deg": 0.0, "v_r_std": 0.0}

@@ -29,11 +29,10 @@ from radar4dgs.io import read_scene
 from radar4dgs.io.image_motion import scene_dynamic_pixel_motion
 
 EXACT_RADAR = {"range_std": 0.0, "azimuth_std_deg": 0.0, "elevation_std_deg": 0.0, "v_r_std": 0.0}
-# Content digests of calm tiny scenes (3 frames), recorded with the generator as it was before
-# traffic profiles existed: calm scenes must stay identical for every seed (the benchmarks use them).
+# Content digests of calm tiny scenes (3 frames): calm scenes must stay identical for every seed (the benchmarks
+# use them). First recorded before traffic profiles existed; scene.json's recorded config lists every option at its
+# default, so adding "supersample": 1 moved the digests, and every other file was checked to be unchanged.
 # PNGs are hashed as decoded pixels, so a different zlib does not matter; everything else as bytes.
-# The calm scenes' images and arrays stay byte-identical as options are added; scene.json's recorded config
-# lists each new option at its default, so its digest moves ("supersample": 1 was checked to be the only change).
 CALM_DIGESTS = {
     (3, 10.0): "cfa20f9b080d102e460aa898fc6cc84152c45fa2e4216b8f2141bc97910189ba",
     (4, 5.0): "63c44c3ac93df7265061e9a3b0fe34a01394de31b1886e4839e5e04fdc12adc6",
