@@ -17,9 +17,7 @@ def synth_config(preset_name: str, seed: int, traffic: str = "calm", fps: float 
     overrides: dict = {} if traffic == "calm" else {"traffic": traffic_profile(traffic)}
     if fps is not None:
         overrides["fps"] = fps
-    if supersample != 1:
-        overrides["supersample"] = supersample
-    return preset(SynthConfig, preset_name, seed=seed, **overrides)
+    return preset(SynthConfig, preset_name, seed=seed, supersample=supersample, **overrides)
 
 
 def prepare_config(preset_name: str, items: list[str] = ()) -> PrepareConfig:
