@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import torch
 
+from radar4dgs.evaluate.motion_bins import RENDERS_DIR
 from radar4dgs.io import read_scene
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.metrics.image import psnr
@@ -41,31 +42,29 @@ def masked_psnr(render: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> floa
 
 
 def score_run(run_dir: Path, truth_dir: Path | None, size: tuple[int, int]) -> dict:
-    """``psnr_dyn_own`` (the run's renders against its own scene) and ``psnr_dyn_at_size`` (both area-averaged to
-    ``size``, against the truth scene), each the mean over the held-out frames with moving pixels."""
+    """``psnr_dyn_own`` (the novel-view PSNR* ``radar4dgs eval`` stored in the run's metrics.json) and
+    ``psnr_dyn_at_size`` (renders and truth area-averaged to ``size``, against the truth scene: the mean over the
+    held-out frames with moving pixels)."""
     from PIL import Image
 
     scene = read_scene(json.loads((run_dir / "run.json").read_text())["scene"])
     truth_scene = read_scene(truth_dir) if truth_dir is not None else scene
     if truth_scene.test_indices != scene.test_indices:
         raise ValueError(f"{truth_scene.root}: its held-out frames differ from {scene.root}'s")
-    own, at_size = [], []
+    at_size = []
     for index in scene.test_indices:
-        path = run_dir / "renders" / "nvs" / f"{scene.frames[index].name}.png"
+        path = run_dir / RENDERS_DIR / "nvs" / f"{scene.frames[index].name}.png"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: missing render; run `radar4dgs eval {run_dir}` first")
         with Image.open(path) as image:
             render = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
-        own_mask = scene.load_optional("gt/dynamic_mask", index).astype(bool)
-        if own_mask.any():
-            own.append(masked_psnr(render, scene.load_image(index).astype(np.float32) / 255.0, own_mask))
         truth = truth_scene.load_image(index).astype(np.float32) / 255.0
         mask = area_resize(truth_scene.load_optional("gt/dynamic_mask", index).astype(np.float32), size) >= 0.5
         if mask.any():
             at_size.append(masked_psnr(area_resize(render, size), area_resize(truth, size), mask))
     return {"run": str(run_dir), "truth": str(truth_scene.root), "size": f"{size[0]}x{size[1]}",
             "trained_size": f"{scene.camera.width}x{scene.camera.height}", "frames": len(at_size),
-            "psnr_dyn_own": float(np.mean(own)) if own else None,
+            "psnr_dyn_own": json.loads((run_dir / "metrics.json").read_text())["nvs"].get("psnr_dyn"),
             "psnr_dyn_at_size": float(np.mean(at_size)) if at_size else None}
 
 
