@@ -27,6 +27,7 @@ from radar4dgs.evaluate.motion_bins import RENDERS_DIR
 from radar4dgs.io import read_scene
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.metrics.image import psnr
+from scene_configs import parse_size
 
 
 def area_resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -71,20 +72,19 @@ def score_run(run_dir: Path, truth_dir: Path | None, size: tuple[int, int]) -> d
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", help="RUN or RUN@SCENE (the truth scene)")
-    parser.add_argument("--size", default="320x180", help="common size WxH (default 320x180)")
+    parser.add_argument("--size", type=parse_size, default=(320, 180), help="common size WxH (default 320x180)")
     parser.add_argument("--out", type=Path, default=None, help="write the rows as JSON here")
     args = parser.parse_args()
-    width, height = (int(v) for v in args.size.lower().split("x"))
     rows = []
     for spec in args.runs:
         run, _, truth = spec.partition("@")
-        row = score_run(Path(run), Path(truth) if truth else None, (width, height))
+        row = score_run(Path(run), Path(truth) if truth else None, args.size)
         rows.append(row)
         print(f"{run}: trained at {row['trained_size']}, PSNR* {row['psnr_dyn_own']:.2f} dB there, "
               f"{row['psnr_dyn_at_size']:.2f} dB at {row['size']} against {row['truth']} ({row['frames']} frames)")
     if args.out is not None:
         atomic_write_json(args.out, {"command": "python benchmarks/equal_scale.py " + " ".join(args.runs)
-                                     + f" --size {args.size}", "rows": rows})
+                                     + f" --size {args.size[0]}x{args.size[1]}", "rows": rows})
 
 
 if __name__ == "__main__":
