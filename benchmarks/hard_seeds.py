@@ -86,7 +86,7 @@ def main() -> None:
         seeds[str(seed)] = row
         report["picked"] = picked
         atomic_write_json(args.out, report)
-        shown = row.get("motion") or row["screen"]
+        shown = row.get("motion") or row["screen"] or {"p90": None}
         print(f"seed {seed}: p90 {shown['p90']} px at "
               f"{size_text if 'motion' in row else 'the screen size'}{'  <- picked' if row.get('picked') else ''}",
               flush=True)
