@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from radar4dgs.io.atomic import atomic_write_json
-from scene_configs import prepare_config, synth_config
+from scene_configs import prepare_config, synth_config, synthesize_once
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -55,14 +55,11 @@ def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_s
     """Synthesize and prepare one scene under work/scenes/, with its background render; reused.
     ``fps``: the scenes' frame rate (None: the preset's)."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.datasets.synth import synthesize
     from radar4dgs.datasets.synth.background import BACKGROUND_DIR, write_backgrounds
     from radar4dgs.io.scene import read_scene
 
     scene = work / "scenes" / (f"{preset_name}-{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz"))
-    if not (scene / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
-                   preset=preset_name)
+    synthesize_once(synth_config(preset_name, seed, traffic, fps), scene, preset_name)
     if not (scene / "prepared" / "config.json").is_file():
         run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     if not (scene / BACKGROUND_DIR).is_dir():

@@ -21,11 +21,10 @@ import shutil
 import sys
 from pathlib import Path
 
-from radar4dgs.datasets.synth import synthesize
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
 from radar4dgs.io.scene import read_scene
-from scene_configs import parse_size, scene_label, synth_config
+from scene_configs import parse_size, scene_label, synth_config, synthesize_once
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -33,9 +32,7 @@ RESULTS = Path(__file__).parent / "results"
 def scene_motion(seed: int, traffic: str, fps: float | None, size: tuple[int, int], folder: Path) -> dict | None:
     """Synthesize the ``small`` scene of ``seed`` at ``size`` into ``folder`` (reused when there) and return its
     dynamic pixels' p50 / p90 / p99 / max motion (px a frame)."""
-    if not (folder / "scene.json").is_file():
-        synthesize(synth_config("small", seed, traffic, fps, size=size), folder, overwrite=True, progress=False,
-                   preset="small")
+    synthesize_once(synth_config("small", seed, traffic, fps, size=size), folder, "small")
     return dynamic_motion_statistics(read_scene(folder))
 
 

@@ -52,7 +52,7 @@ from radar4dgs.motion.metrics import motion_frontend_metrics
 from radar4dgs.motion.optical_flow import time_dis
 from radar4dgs.radar.objects import load_radar_objects
 from radar4dgs.train.fit_motion import FlowSamples, MotionConfig, evaluate_sceneflow, fit_field, run_fit, torch_threads
-from scene_configs import prepare_config, synth_config
+from scene_configs import prepare_config, synth_config, synthesize_once
 
 RESULTS = Path(__file__).parent / "results" / "motion.json"
 # mode: (use_flow, use_radar, use_velocity); both_velocity adds the radar objects' velocity term
@@ -90,13 +90,11 @@ def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic
     the radar stage runs and depth and masks come from the scene's gt/ (an upper bound).
     ``prepare_set``: dotted ``KEY=VALUE`` overrides of the preset's PrepareConfig."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.datasets.synth import synthesize
 
     name = f"{preset_name}-s{seed}" + ("" if traffic == "calm" else f"-{traffic}")
     name += "" if fps is None else f"-{fps:g}hz"
     scene_dir = work / name
-    if not (scene_dir / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic, fps), scene_dir, overwrite=True, progress=False)
+    synthesize_once(synth_config(preset_name, seed, traffic, fps), scene_dir)
     prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
     stages = ("radar",) if oracle else ("radar", "depth", "masks", "object_depth")
     run_prepare(scene_dir, prepared, prepare_config(preset_name, prepare_set), only=stages, progress=False)

@@ -25,13 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from radar4dgs.apps.prepare import run_prepare  # noqa: E402
-from radar4dgs.datasets.synth import synthesize  # noqa: E402
 from radar4dgs.evaluate.dynamic_depth import object_depth_metrics  # noqa: E402
 from radar4dgs.io.atomic import atomic_write_json  # noqa: E402
 from radar4dgs.io.preview import dynamic_motion_statistics  # noqa: E402
 from radar4dgs.io.scene import read_scene  # noqa: E402
 from radar4dgs.io.scene_files import prepared_depth_path  # noqa: E402
-from scene_configs import prepare_config, synth_config  # noqa: E402
+from scene_configs import prepare_config, synth_config, synthesize_once  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results" / "object-depth.json"
 NEAR = 15.0  # m: the close movers, a car or two lengths ahead
@@ -79,8 +78,7 @@ def near_errors(scene, prepared: Path) -> dict:
 def scene_row(seed: int, traffic: str, fps: float | None, work: Path) -> dict:
     root = work / f"{traffic}-{fps or 'default'}-seed{seed}"
     scene_dir, prepared = root / "scene", root / "prepared"
-    if not (scene_dir / "scene.json").is_file():
-        synthesize(synth_config("small", seed, traffic, fps), scene_dir, overwrite=True, progress=False, preset="small")
+    synthesize_once(synth_config("small", seed, traffic, fps), scene_dir, "small")
     run_prepare(scene_dir, prepared, prepare_config("small"), only=("radar", "depth", "masks", "object_depth"),
                 progress=False)
     scene = read_scene(scene_dir)

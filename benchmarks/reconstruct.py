@@ -45,7 +45,7 @@ from radar4dgs.config import preset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import dynamic_motion_statistics
 from radar4dgs.io.scene import read_scene
-from scene_configs import prepare_config, synth_config
+from scene_configs import prepare_config, synth_config, synthesize_once
 
 RESULTS = Path(__file__).parent / "results" / "reconstruct.json"
 FIXTURE = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "aimotive-night"
@@ -56,13 +56,10 @@ def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm"
     """The demo's layout: work/seed<N>/{scene, prepared}; ``prepare_set``: dotted PrepareConfig
     overrides (``flow.method=oracle``)."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.datasets.synth import synthesize
 
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
-    if not (scene / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic, fps), scene, overwrite=True, progress=False,
-                   preset=preset_name)
+    synthesize_once(synth_config(preset_name, seed, traffic, fps), scene, preset_name)
     run_prepare(scene, work / f"seed{seed}" / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started
 

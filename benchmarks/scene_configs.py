@@ -1,12 +1,15 @@
-"""Configs the benchmark scripts share (not a script): the synthetic scene of a seed under a traffic
-profile and frame rate, and a preset's PrepareConfig with dotted overrides."""
+"""What the benchmark scripts share (not a script): the synthetic scene of a seed under a traffic profile, frame rate
+and image size, synthesized once into a folder they reuse and named alike, and a preset's PrepareConfig with dotted
+overrides."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from radar4dgs.apps.bench_spec import parse_overrides
 from radar4dgs.apps.prepare import PrepareConfig
 from radar4dgs.config import from_dict, preset
-from radar4dgs.datasets.synth import SynthConfig, traffic_profile
+from radar4dgs.datasets.synth import SynthConfig, synthesize, traffic_profile
 from radar4dgs.train.variants import merge
 
 
@@ -21,6 +24,14 @@ def synth_config(preset_name: str, seed: int, traffic: str = "calm", fps: float 
     if size is not None:
         overrides["width"], overrides["height"] = size
     return preset(SynthConfig, preset_name, seed=seed, supersample=supersample, **overrides)
+
+
+def synthesize_once(config: SynthConfig, folder: Path, preset_name: str | None = None) -> Path:
+    """Synthesize ``config`` into ``folder`` unless a scene is there already (benchmarks reuse their scenes across
+    runs); ``preset_name`` is recorded in scene.json's source."""
+    if not (folder / "scene.json").is_file():
+        synthesize(config, folder, overwrite=True, progress=False, preset=preset_name)
+    return folder
 
 
 def scene_label(traffic: str, seed: int, fps: float | None = None, supersample: int = 1,

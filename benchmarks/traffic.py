@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 
 from radar4dgs.io.atomic import atomic_write_json
-from scene_configs import parse_size, prepare_config, scene_label, synth_config
+from scene_configs import parse_size, prepare_config, scene_label, synth_config, synthesize_once
 
 GRID_SETTINGS = ["init.max_static=30000", "densify.max_gaussians=40000"]
 RESULTS = Path(__file__).parent / "results"
@@ -41,14 +41,11 @@ def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, 
     """Synthesize (traffic profile, fps, image size) and prepare one scene into work/scenes/<label>/
     (PrepareConfig fields overridden by dotted ``prepare_set`` items); reused."""
     from radar4dgs.apps.prepare import run_prepare
-    from radar4dgs.datasets.synth import synthesize
     from radar4dgs.io.preview import dynamic_motion_statistics
     from radar4dgs.io.scene import read_scene
 
     scene = work / "scenes" / scene_label(traffic, seed, fps, supersample, size)
-    if not (scene / "scene.json").is_file():
-        synthesize(synth_config(preset_name, seed, traffic, fps, supersample, size), scene, overwrite=True,
-                   progress=False, preset=preset_name)
+    synthesize_once(synth_config(preset_name, seed, traffic, fps, supersample, size), scene, preset_name)
     run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
     return scene, dynamic_motion_statistics(read_scene(scene))
 
