@@ -193,3 +193,44 @@ def test_gated_assignment_does_not_trade_a_good_pair_for_one_beyond_the_gate():
     cost = np.array([[0.5, 40.0], [1.0, np.inf]])
     assert gated_assignment(cost, 4.0) == [(0, 0)]
     assert gated_assignment(np.zeros((0, 3)), 4.0) == []
+
+
+def radial_only_detection(position, radial_speed, tangential_std=10.0):
+    """(4,) measurement and (4, 4) covariance of a scan whose returns spread too little in azimuth: the
+    velocity along the line of sight from a radar at the origin is known, the one across it is not."""
+    u = np.asarray(position, float) / np.linalg.norm(position)
+    t = J @ u
+    R = np.zeros((4, 4))
+    R[:2, :2] = np.eye(2)
+    R[2:, 2:] = 0.15 ** 2 * np.outer(u, u) + tangential_std ** 2 * np.outer(t, t)
+    return np.concatenate([position, radial_speed * u]), R
+
+
+@pytest.mark.parametrize("tentative_hits, same_track", [(1, True), (2, False)])
+def test_a_one_scan_track_ends_at_its_first_miss_instead_of_taking_another_objects_detection(tentative_hits,
+                                                                                           same_track):
+    # A far object seen once with a radial velocity only, then two empty scans, then another object
+    # 8 m across the line of sight from where the first would be: inside the gate that the unknown
+    # tangential velocity opens, so a coasting one-scan track takes it and reads the offset as speed.
+    times = np.arange(4) * 0.2
+    first = np.array([90.0, 15.0])
+    u = first / np.linalg.norm(first)
+    z0, R0 = radial_only_detection(first, 2.0)
+    z3, R3 = radial_only_detection(first + 0.6 * 2.0 * u + 8.0 * (J @ u), 2.0)
+    empty = (np.zeros((0, 4)), np.zeros((0, 4, 4)))
+    z = [z0[None], empty[0], empty[0], z3[None]]
+    R = [R0[None], empty[1], empty[1], R3[None]]
+    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=tentative_hits))
+    assert (out[3].ids[0] == out[0].ids[0]) == same_track
+
+
+def test_a_confirmed_track_still_coasts_across_a_missed_scan():
+    times = np.arange(5) * 0.2
+    velocity = np.array([0.0, 11.0])                     # crossing, seen in full by its first two scans
+    z, R = [], []
+    for k in range(5):
+        position = np.array([40.0, -5.0]) + velocity * times[k]
+        z.append(np.concatenate([position, velocity])[None] if k not in (2, 3) else np.zeros((0, 4)))
+        R.append(np.diag([1.0, 1.0, 0.04, 0.04])[None] if k not in (2, 3) else np.zeros((0, 4, 4)))
+    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=2))
+    assert out[4].ids[0] == out[0].ids[0]

@@ -95,6 +95,11 @@ class RadarObjectConfig:
     # 10 Hz: a distant car's few returns drop out for several scans, and each new track has to learn
     # the tangential velocity again from the centroid's motion).
     max_missed: int = 5
+    # Tracking: a track updated fewer than this many times ends at its first missed scan (M-of-N track
+    # confirmation). Why: a new track often knows only its radial velocity, so after one coasted scan its
+    # gate spans tens of metres across the line of sight and takes another object's detection, whose
+    # offset the filter then reads as a velocity (a pedestrian tracked at 5 m/s). 1: every track coasts.
+    tentative_hits: int = 2
 
 
 @dataclass

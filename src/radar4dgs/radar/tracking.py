@@ -137,6 +137,7 @@ class _Track:
     P: np.ndarray
     mu: np.ndarray
     missed: int = 0
+    hits: int = 1
 
     def combined(self, mu: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(5,) state and (5, 5) covariance of the mixture of the models with weights ``mu``."""
@@ -319,9 +320,10 @@ def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], cov
                 tracks.append(track)
             else:
                 _imm_update(track, predicted[track.id], z[j], R[j], radars[t, :2])
+                track.hits += 1
             track.missed = 0
             owner[j] = track
-        tracks = [tr for tr in tracks if tr.missed <= config.max_missed]
+        tracks = [tr for tr in tracks if tr.missed <= (config.max_missed if tr.hits >= config.tentative_hits else 0)]
         rows = [owner[j] for j in range(len(z))]
         combined = [tr.combined() for tr in rows]
         out.append(TrackedFrame(np.array([tr.id for tr in rows], dtype=np.int64),
