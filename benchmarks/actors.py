@@ -137,7 +137,6 @@ def oracle_run(run, work: Path) -> Path:
 
     from radar4dgs.apps.prepare import PrepareConfig, run_prepare
     from radar4dgs.config import load_config
-    from radar4dgs.datasets.synth import synthesize
     from radar4dgs.datasets.synth.background import scene_config
     from radar4dgs.train.trainer import train_run
 
@@ -145,8 +144,7 @@ def oracle_run(run, work: Path) -> Path:
     scene, out = folder / "scene", folder / "run"
     if not (scene / "scene.json").is_file():
         preset_name = json.loads((run.scene.root / "scene.json").read_text())["source"].get("preset")
-        synthesize(replace(scene_config(run.scene.root), without_movers=True), scene, overwrite=True,
-                   progress=False, preset=preset_name)
+        synthesize_once(replace(scene_config(run.scene.root), without_movers=True), scene, preset_name)
     if not (scene / "prepared" / "config.json").is_file():
         run_prepare(scene, scene / "prepared", load_config(PrepareConfig, run.prepared / "config.json"),
                     progress=False)

@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from radar4dgs.io.atomic import atomic_write_json
+from scene_configs import synth_config, synthesize_once
 
 RESULTS = Path(__file__).parent / "results" / "batch.json"
 # Trivial tasks timed on a warm worker, and tasks each on a new worker process (max_calls=1).
@@ -66,17 +67,8 @@ def load() -> list[float]:
 
 def make_scenes(seeds: list[int], preset_name: str, work: Path) -> list[Path]:
     """The synthetic scenes, made once under work/scenes/<preset>-s<seed> and reused."""
-    from radar4dgs.config import preset
-    from radar4dgs.datasets.synth import SynthConfig, synthesize
-
-    scenes = []
-    for seed in seeds:
-        scene = work / "scenes" / f"{preset_name}-s{seed}"
-        if not (scene / "scene.json").is_file():
-            synthesize(preset(SynthConfig, preset_name, seed=seed), scene, overwrite=True, progress=False,
-                       preset=preset_name)
-        scenes.append(scene)
-    return scenes
+    return [synthesize_once(synth_config(preset_name, seed), work / "scenes" / f"{preset_name}-s{seed}", preset_name)
+            for seed in seeds]
 
 
 def ray_costs(repeats: int) -> dict:
