@@ -67,6 +67,18 @@ def test_exact_recovery_wherever_the_object_is(vx, vy, rng_m, azimuth, n, seed):
         assert np.linalg.eigvalsh(fit.covariance)[-1] == pytest.approx(100.0, rel=1e-6)
 
 
+@pytest.mark.parametrize("min_full_fit_returns, observable", [(2, True), (3, False)])
+def test_two_returns_get_the_radial_estimate_since_nothing_checks_their_exact_fit(min_full_fit_returns, observable):
+    # Two returns 8 degrees apart, one from a car receding at 10 m/s along its line of sight and
+    # one a clutter return reading 0: the 2x2 system solves exactly to a speed no road user has.
+    A = np.array([[math.cos(a), math.sin(a)] for a in np.radians([0.0, 8.0])])
+    b = np.array([10.0, 0.0])
+    fit = fit_planar_velocity(A, b, RadarObjectConfig(min_full_fit_returns=min_full_fit_returns))
+    assert fit.observable == observable
+    speed = float(np.linalg.norm(fit.velocity))
+    assert (speed > 50.0) if observable else (speed < 10.0)  # 72 m/s exact, 10 radial
+
+
 def test_covariance_is_calibrated_under_noise():
     rng = np.random.default_rng(1)
     config = RadarObjectConfig()

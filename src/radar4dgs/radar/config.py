@@ -51,6 +51,11 @@ class RadarObjectConfig:
     # It also counts as unobservable when its predicted std (residual std / sqrt of the smallest
     # eigenvalue of A^T A, A the inliers' planar directions) exceeds this (m/s).
     max_tangential_std: float = 2.0
+    # Inlier returns an object needs for its full planar velocity; with fewer it gets the radial-only estimate.
+    # Why: two returns solve the 2x2 system exactly, with no residual to check it, and two returns of two
+    # things (or one clutter return) 4-6 degrees apart solve to any speed (50-120 m/s seen in rush traffic),
+    # reported with the prior's small std. 2: any two returns spreading enough.
+    min_full_fit_returns: int = 3
     # Correct the fit for the noise of the returns' directions (RadarConfig.azimuth_std, elevation_std):
     # plain least squares on noisy directions pulls the velocity across the line of sight toward the
     # radar's own (errors in variables); on crossing cars 1.5-2 deg wide that is 0.4-0.8 m/s too slow.

@@ -10,7 +10,8 @@ world axes). We ASSUME ``v_z = 0`` (road traffic moves in the world's ground pla
 is robust: MSAC over pairs of returns (each pair solves the 2x2 system exactly) plus one radial
 hypothesis per return, then least squares on the inliers, repeated until the inlier set is stable.
 Its covariance is ``s^2 (A^T A)^-1`` over the inliers, ``s^2`` the residual variance pooled with a
-prior (``residual_prior_std``, ``residual_prior_dof``). When the inliers' azimuths spread too little
+prior (``residual_prior_std``, ``residual_prior_dof``). When the inliers are fewer than
+``min_full_fit_returns`` (two solve exactly, with nothing left to check them), their azimuths spread too little
 (``min_azimuth_spread_deg``) or the tangential std that spread predicts is too large
 (``max_tangential_std``), the object is flagged unobservable and its velocity is the radial-only
 estimate ``s u`` (``u`` the mean planar line of sight) with variance ``unobserved_std^2`` across ``u``.
@@ -228,7 +229,8 @@ def fit_planar_velocity(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig 
     spread = float(np.sqrt(np.mean(angles ** 2)))
     normal = Ai.T @ Ai
     smallest = float(np.linalg.eigvalsh(normal)[0]) if len(Ai) >= 2 else 0.0
-    observable = len(Ai) >= 2 and spread >= math.radians(config.min_azimuth_spread_deg) and smallest > 1e-12
+    observable = (len(Ai) >= max(config.min_full_fit_returns, 2) and spread >= math.radians(config.min_azimuth_spread_deg)
+                  and smallest > 1e-12)
     if observable:
         sigma = pooled_std(bi - Ai @ v, len(bi) - 2, config)
         observable = sigma / math.sqrt(smallest) <= config.max_tangential_std
