@@ -229,8 +229,8 @@ def fit_planar_velocity(A: np.ndarray, b: np.ndarray, config: RadarObjectConfig 
     spread = float(np.sqrt(np.mean(angles ** 2)))
     normal = Ai.T @ Ai
     smallest = float(np.linalg.eigvalsh(normal)[0]) if len(Ai) >= 2 else 0.0
-    observable = (len(Ai) >= max(config.min_full_fit_returns, 2) and spread >= math.radians(config.min_azimuth_spread_deg)
-                  and smallest > 1e-12)
+    observable = (len(Ai) >= max(config.min_full_fit_returns, 2)
+                  and spread >= math.radians(config.min_azimuth_spread_deg) and smallest > 1e-12)
     if observable:
         sigma = pooled_std(bi - Ai @ v, len(bi) - 2, config)
         observable = sigma / math.sqrt(smallest) <= config.max_tangential_std
