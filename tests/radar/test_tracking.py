@@ -206,22 +206,35 @@ def radial_only_detection(position, radial_speed, tangential_std=10.0):
     return np.concatenate([position, radial_speed * u]), R
 
 
-@pytest.mark.parametrize("tentative_hits, same_track", [(1, True), (2, False)])
-def test_a_one_scan_track_ends_at_its_first_miss_instead_of_taking_another_objects_detection(tentative_hits,
-                                                                                           same_track):
-    # A far object seen once with a radial velocity only, then two empty scans, then another object
-    # 8 m across the line of sight from where the first would be: inside the gate that the unknown
-    # tangential velocity opens, so a coasting one-scan track takes it and reads the offset as speed.
+def tentative_scenario(across: float, along: float):
+    """A far object seen once with a radial velocity only, two empty scans, then a detection ``across`` m
+    across and ``along`` m along the line of sight from where the first object's radial motion puts it."""
     times = np.arange(4) * 0.2
     first = np.array([90.0, 15.0])
     u = first / np.linalg.norm(first)
     z0, R0 = radial_only_detection(first, 2.0)
-    z3, R3 = radial_only_detection(first + 0.6 * 2.0 * u + 8.0 * (J @ u), 2.0)
+    z3, R3 = radial_only_detection(first + (0.6 * 2.0 + along) * u + across * (J @ u), 2.0)
     empty = (np.zeros((0, 4)), np.zeros((0, 4, 4)))
-    z = [z0[None], empty[0], empty[0], z3[None]]
-    R = [R0[None], empty[1], empty[1], R3[None]]
-    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=tentative_hits))
+    return times, [z0[None], empty[0], empty[0], z3[None]], [R0[None], empty[1], empty[1], R3[None]]
+
+
+@pytest.mark.parametrize("tentative_hits, tentative_gate_chi2, same_track",
+                         [(1, 0.0, True), (2, 0.0, False), (2, 4.0, False)])
+def test_a_one_scan_track_does_not_take_another_objects_detection_after_a_miss(tentative_hits, tentative_gate_chi2,
+                                                                                same_track):
+    # 8 m across and 3 m along the line of sight: inside the full gate that the unknown tangential
+    # velocity opens (a coasting one-scan track takes it and reads the offset as speed), outside the
+    # tentative gate, and ended with the track where there is none.
+    times, z, R = tentative_scenario(8.0, 3.0)
+    config = RadarObjectConfig(tentative_hits=tentative_hits, tentative_gate_chi2=tentative_gate_chi2)
+    out = track_detections(times, z, R, config)
     assert (out[3].ids[0] == out[0].ids[0]) == same_track
+
+
+def test_a_one_scan_track_still_finds_its_object_again_where_it_should_be():
+    times, z, R = tentative_scenario(2.0, 0.0)
+    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=2, tentative_gate_chi2=4.0))
+    assert out[3].ids[0] == out[0].ids[0]
 
 
 def test_a_confirmed_track_still_coasts_across_a_missed_scan():

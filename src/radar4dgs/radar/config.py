@@ -100,11 +100,16 @@ class RadarObjectConfig:
     # 10 Hz: a distant car's few returns drop out for several scans, and each new track has to learn
     # the tangential velocity again from the centroid's motion).
     max_missed: int = 5
-    # Tracking: a track updated fewer than this many times ends at its first missed scan (M-of-N track
-    # confirmation). Why: a new track often knows only its radial velocity, so after one coasted scan its
-    # gate spans tens of metres across the line of sight and takes another object's detection, whose
-    # offset the filter then reads as a velocity (a pedestrian tracked at 5 m/s). 1: every track coasts.
+    # Tracking: a track updated fewer than this many times is tentative: once it has missed a scan it takes a
+    # detection only within `tentative_gate_chi2`. Why: a new track often knows only its radial velocity, so
+    # after one coasted scan its full gate spans tens of metres across the line of sight and takes another
+    # object's detection, whose offset the filter then reads as a velocity (a pedestrian tracked at 5 m/s).
+    # 1: no track is tentative.
     tentative_hits: int = 2
+    # See tentative_hits: the squared Mahalanobis gate of a tentative track that has missed a scan (4 dof;
+    # 4.0 keeps about 60 % of true re-detections: a distant crossing car seen every other scan still
+    # learns its tangential velocity from them). 0: such a track ends at its first missed scan instead.
+    tentative_gate_chi2: float = 4.0
 
 
 @dataclass

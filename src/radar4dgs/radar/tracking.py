@@ -256,16 +256,24 @@ def gated_assignment(cost: np.ndarray, gate: float) -> list[tuple[int, int]]:
     return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if inside[r, c]]
 
 
-def _assign(tracks: list[_Track], z: np.ndarray, R: np.ndarray, radar: np.ndarray, gate: float
+def _assign(tracks: list[_Track], z: np.ndarray, R: np.ndarray, radar: np.ndarray, config: RadarObjectConfig
             ) -> list[tuple[int, int]]:
     """(track position, detection) pairs inside the gate of the tracks' combined predictions (gating on
     the nearer model instead let the turning model's wide prediction take wrong detections), minimising
-    the summed squared distance."""
+    the summed squared distance. A tentative track (fewer than ``tentative_hits`` updates) that has
+    missed a scan pairs only within ``tentative_gate_chi2``."""
     if not tracks or len(z) == 0:
         return []
     states = [t.combined() for t in tracks]
-    return gated_assignment(np.array([[mahalanobis_sq(x, P, z[j], R[j], radar) for j in range(len(z))]
-                                      for x, P in states]), gate)
+    cost = np.array([[mahalanobis_sq(x, P, z[j], R[j], radar) for j in range(len(z))] for x, P in states])
+    for row, track in enumerate(tracks):
+        if _tentative(track, config) and track.missed > 0:
+            cost[row, cost[row] > config.tentative_gate_chi2] = np.inf
+    return gated_assignment(cost, config.gate_chi2)
+
+
+def _tentative(track: _Track, config: RadarObjectConfig) -> bool:
+    return track.hits < config.tentative_hits
 
 
 def _birth(track_id: int, z: np.ndarray, R: np.ndarray, config: RadarObjectConfig) -> _Track:
@@ -309,7 +317,7 @@ def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], cov
         predicted = {track.id: _imm_predict(track, dt, config) for track in tracks}
         for track in tracks:
             track.mu = predicted[track.id]
-        owner = {j: tracks[i] for i, j in _assign(tracks, z, R, radars[t, :2], config.gate_chi2)}
+        owner = {j: tracks[i] for i, j in _assign(tracks, z, R, radars[t, :2], config)}
         for track in tracks:
             track.missed += 1
         for j in range(len(z)):
@@ -323,7 +331,9 @@ def track_detections(timestamps: np.ndarray, measurements: list[np.ndarray], cov
                 track.hits += 1
             track.missed = 0
             owner[j] = track
-        tracks = [tr for tr in tracks if tr.missed <= (config.max_missed if tr.hits >= config.tentative_hits else 0)]
+        # A tentative track with no gate of its own to coast on ends at its first miss.
+        tracks = [tr for tr in tracks if tr.missed <= (0 if _tentative(tr, config) and config.tentative_gate_chi2 <= 0
+                                                       else config.max_missed)]
         rows = [owner[j] for j in range(len(z))]
         combined = [tr.combined() for tr in rows]
         out.append(TrackedFrame(np.array([tr.id for tr in rows], dtype=np.int64),
