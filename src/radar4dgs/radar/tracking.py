@@ -25,7 +25,9 @@ Why not the turning model alone: it also explains a new track's unknown tangenti
 Each frame's detections are assigned to the tracks' combined predictions by the Hungarian method on
 the squared Mahalanobis distance of the innovation, gated at ``gate_chi2``; unassigned detections
 start tracks (``omega = 0``, std ``yaw_rate_std`` in the turning model); a track not updated for more
-than ``max_missed`` frames ends (a missed frame is a prediction only). The reported velocity is the
+than ``max_missed`` frames ends (a missed frame is a prediction only). A tentative track (fewer than
+``tentative_hits`` updates) that has missed a frame is gated at ``tentative_gate_chi2`` instead: it often
+knows only its radial velocity, and its full gate would reach tens of metres across the line of sight. The reported velocity is the
 models' combination: the velocity of the body point at the returns' centroid (not the box centre:
 0.45 rad/s x 2 m = 0.9 m/s apart on a turning car seen from behind).
 
