@@ -27,9 +27,9 @@ the squared Mahalanobis distance of the innovation, gated at ``gate_chi2``; unas
 start tracks (``omega = 0``, std ``yaw_rate_std`` in the turning model); a track not updated for more
 than ``max_missed`` frames ends (a missed frame is a prediction only). A tentative track (fewer than
 ``tentative_hits`` updates) that has missed a frame is gated at ``tentative_gate_chi2`` instead: it often
-knows only its radial velocity, and its full gate would reach tens of metres across the line of sight. The reported velocity is the
-models' combination: the velocity of the body point at the returns' centroid (not the box centre:
-0.45 rad/s x 2 m = 0.9 m/s apart on a turning car seen from behind).
+knows only its radial velocity, and its full gate would reach tens of metres across the line of sight.
+The reported velocity is the models' combination: the velocity of the body point at the returns'
+centroid (not the box centre: 0.45 rad/s x 2 m = 0.9 m/s apart on a turning car seen from behind).
 
 Hand-written in numpy rather than filterpy: a 5-state filter and its IMM are ~100 lines, and filterpy is
 unmaintained (no release since 2018).
