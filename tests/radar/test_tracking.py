@@ -245,5 +245,8 @@ def test_a_confirmed_track_still_coasts_across_a_missed_scan():
         position = np.array([40.0, -5.0]) + velocity * times[k]
         z.append(np.concatenate([position, velocity])[None] if k not in (2, 3) else np.zeros((0, 4)))
         R.append(np.diag([1.0, 1.0, 0.04, 0.04])[None] if k not in (2, 3) else np.zeros((0, 4, 4)))
-    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=2))
+    # Two updates make it confirmed: it coasts where a tentative track would end (gate 0).
+    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=2, tentative_gate_chi2=0.0))
     assert out[4].ids[0] == out[0].ids[0]
+    out = track_detections(times, z, R, RadarObjectConfig(tentative_hits=3, tentative_gate_chi2=0.0))
+    assert out[4].ids[0] != out[0].ids[0]
