@@ -11,7 +11,8 @@ PSNR split by how far the pixels move in the image, beside each scene's image-mo
 Seeds are those of benchmarks/motion.py, fixed before any tuning: calm (the demo's traffic) 1-5 tune;
 realistic 10 Hz 101-105 tune, 106-110 report; realistic 5 Hz 111-112 report; rush 10 Hz 201-203 tune,
 204-208 report; rush 5 Hz (the hard set) 209-213 report, 214-243 tune; rush 5 Hz at 640x360 with p90 >= 40 px a
-frame (the strict hard set, picked by benchmarks/hard_seeds.py from 300 on) report.
+frame (the strict hard set, picked by benchmarks/hard_seeds.py) 306/309/313/322/326 report (from 300 on),
+404/406/409/411/412 tune (from 400 on).
 The grid budget is the bench's (600 iterations, init.max_static=30000, densify.max_gaussians=40000,
 no LPIPS) unless --iterations / --set say otherwise. Cells are `radar4dgs bench` cells under
 --work (finished ones are reused, so an interrupted run continues). Writes the JSON after every
