@@ -65,3 +65,33 @@ def test_a_stage_alone_refuses_earlier_stages_of_another_config(tmp_path, capsys
     assert err.count("\n") == 1 and f"{root / 'prepared' / 'radar'}: prepared with another config" in err
     assert "max_iterations: 200 != 7" in err and "add radar to --only" in err
     assert not (root / "prepared" / "depth").exists()
+
+
+def test_a_stage_redone_alone_makes_the_later_stages_stale(tmp_path, capsys):
+    from radar4dgs.apps.train import check_prepared_scene
+
+    root = write_tiny_scene(tmp_path / "scene", frames=3)
+    prepared = root / "prepared"
+    assert main(["prepare", str(root), "--preset", "tiny", "--quiet"]) == 0
+    check_prepared_scene(root, prepared)
+    capsys.readouterr()
+    # The radar redone alone with another config: the depth, masks and flow on disk were made from the old
+    # radar outputs, and their own configs did not change.
+    other = ["--config.radar.max-iterations", "7"]
+    assert main(["prepare", str(root), "--preset", "tiny", "--only", "radar", "--quiet", *other]) == 0
+    capsys.readouterr()
+    with pytest.raises(ValueError, match="prepared/depth: made from radar outputs that were redone since"):
+        check_prepared_scene(root, prepared)
+    # A later stage alone refuses, naming the stale one before it; so does one after a stage redone in the same call.
+    for only in (["flow"], ["radar", "flow"]):
+        assert main(["prepare", str(root), "--preset", "tiny", "--only", *only, "--quiet", *other]) == 1
+        err = capsys.readouterr().err
+        assert "depth: made from radar outputs that were redone since" in err and "add depth to --only" in err
+    assert main(["prepare", str(root), "--preset", "tiny", "--quiet", *other]) == 0
+    out = capsys.readouterr().out
+    assert "radar: skipped" in out and "depth: ran" in out and "flow: ran" in out
+    check_prepared_scene(root, prepared)
+    # Redone with the same config, the radar's outputs and stamp are the same: nothing after it is stale.
+    assert main(["prepare", str(root), "--preset", "tiny", "--only", "radar", "--force", "--quiet", *other]) == 0
+    assert main(["prepare", str(root), "--preset", "tiny", "--quiet", *other]) == 0
+    assert "depth: skipped" in capsys.readouterr().out.split("radar: ran")[-1]

@@ -23,7 +23,7 @@ from radar4dgs.apps.reuse import read_json as _read_json
 from radar4dgs.apps.reuse import request_text as _request
 from radar4dgs.config import PresetName, preset
 
-__all__ = ["DEMO_FILE", "DEMO_OUTPUTS", "DemoCommand", "run_conflict", "scene_conflict", "stage_fingerprints"]
+__all__ = ["DEMO_FILE", "DEMO_OUTPUTS", "DemoCommand", "run_conflict", "scene_conflict"]
 
 DEMO_FILE = "demo.json"
 # What `--force` removes from OUT: everything the demo writes there, nothing else.
@@ -32,14 +32,6 @@ DEMO_OUTPUTS = ("scene", "prepared", "run", "inspect.png", "frontend_metrics.jso
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def stage_fingerprints(prepared: Path) -> dict[str, str]:
-    """sha256 of each prepared stage's ``stage.json`` (its config, its scene and its result)."""
-    from radar4dgs.apps.prepare import STAGE_MARKER, STAGES
-
-    return {s.name: _sha256(prepared / s.name / STAGE_MARKER) for s in STAGES
-            if (prepared / s.name / STAGE_MARKER).is_file()}
 
 
 @dataclass
@@ -153,12 +145,13 @@ class DemoCommand:
         print(f"    written to {self.out / 'frontend_metrics.json'}")
 
     def train(self, scene_dir: Path, prepared: Path, run_dir: Path, config: Any, status: dict[str, str]) -> None:
+        from radar4dgs.apps.prepare import stage_stamps
         from radar4dgs.evaluate.reconstruction import write_provenance
         from radar4dgs.io.atomic import atomic_write_json
         from radar4dgs.train.trainer import train_run
 
         print(f"[5] train the Gaussian scene (three stages, '{self.preset}' preset) -> {run_dir}")
-        inputs = {"scene": _sha256(scene_dir / "scene.json"), "prepared": stage_fingerprints(prepared)}
+        inputs = {"scene": _sha256(scene_dir / "scene.json"), "prepared": stage_stamps(prepared)}
         demo = _read_json(self.out / DEMO_FILE) or {}
         # A run trained on other inputs than the current ones is stale: demo.json names the scene
         # and prepared stages it was trained on; in a folder from an older demo without it, a stage

@@ -1,9 +1,10 @@
 """The ``prepare`` command: the front-end stages that turn a scene folder into a prepared folder.
 
 Stages run in order, each writing ``<prepared>/<stage>/``. A stage is skipped when its folder holds
-a ``stage.json`` written for the same stage config and the same ``scene.json``; ``--force`` redoes
-it. Each stage folder is written in a temporary folder and renamed into place, so an interrupted
-run leaves either the old outputs or none. The resolved config is saved as
+a ``stage.json`` written for the same stage config and the same ``scene.json`` from the outputs its
+predecessors hold now (their ``stage.json`` stamps, recorded as ``inputs``); ``--force`` redoes it.
+Each stage folder is written in a temporary folder and renamed into place, so an interrupted run
+leaves either the old outputs or none. The resolved config is saved as
 ``<prepared>/config.json``. ``--only`` runs some stages alone; the stages before them must then
 hold this scene's outputs for this config, else the command refuses with what differs.
 """
@@ -145,9 +146,34 @@ def scene_fingerprint(scene: Scene) -> str:
     return hashlib.sha256((scene.root / "scene.json").read_bytes()).hexdigest()
 
 
+def stage_stamps(prepared: Path, before: str | None = None) -> dict[str, str]:
+    """sha256 of each prepared stage's ``stage.json`` (its config, its scene and its result), by stage
+    name, for the stages before ``before`` (all when None); stages not prepared are left out."""
+    names = [s.name for s in STAGES]
+    wanted = names if before is None else names[:names.index(before)]
+    return {name: hashlib.sha256((prepared / name / STAGE_MARKER).read_bytes()).hexdigest()
+            for name in wanted if (prepared / name / STAGE_MARKER).is_file()}
+
+
+def inputs_difference(stage_dir: Path, saved: Mapping[str, Any]) -> str | None:
+    """Why the stage in ``stage_dir`` (its ``stage.json`` contents ``saved``) was not made from the outputs its
+    predecessors now hold (None when it was): a predecessor was redone (``--only ... --force``, another config)
+    after it. Folders from before the stamps were recorded (no ``inputs``) cannot tell and pass."""
+    recorded = saved.get("inputs")
+    if not isinstance(recorded, dict):
+        return None
+    now = stage_stamps(stage_dir.parent, stage_dir.name)
+    redone = [name for name in recorded if now.get(name) != recorded[name]]
+    redone += [name for name in now if name not in recorded]
+    if redone:
+        return f"{stage_dir}: made from {redone[0]} outputs that were redone since"
+    return None
+
+
 def stage_difference(stage_dir: Path, stage_config: Any, fingerprint: str) -> str | None:
     """Why the outputs in ``stage_dir`` are not those of ``stage_config`` on the scene with
-    ``fingerprint`` (None when they are): missing, unreadable, another scene or another config."""
+    ``fingerprint`` from its predecessors' current outputs (None when they are): missing, unreadable,
+    another scene, another config, or a predecessor redone since (:func:`inputs_difference`)."""
     from radar4dgs.config import config_difference, first_differences
 
     marker = stage_dir / STAGE_MARKER
@@ -162,7 +188,7 @@ def stage_difference(stage_dir: Path, stage_config: Any, fingerprint: str) -> st
     changed = config_difference(saved.get("config") or {}, to_dict(stage_config))
     if changed:
         return f"{stage_dir}: prepared with another config ({first_differences(changed)})"
-    return None
+    return inputs_difference(stage_dir, saved)
 
 
 def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bool:
@@ -188,24 +214,24 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
 
 def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool, only: tuple[str, ...],
                 progress: bool) -> dict[str, str]:
-    known = [s.name for s in STAGES]
     prepared.mkdir(parents=True, exist_ok=True)
     save_config(config, prepared / "config.json")
     fingerprint = scene_fingerprint(scene)
-    if only:
-        # A stage run alone reads its predecessors' outputs: they must be this scene's and config's.
-        first = min(known.index(name) for name in only)
-        for stage in STAGES[:first]:
-            stale = stage_difference(prepared / stage.name, getattr(config, stage.name), fingerprint)
-            if stale:
-                raise ValueError(f"{stale}; the later stages read it: add {stage.name} to --only, or run "
-                                 f"without --only")
     status: dict[str, str] = {}
     # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
     upstream_changed = False
-    for stage in STAGES:
+    for position, stage in enumerate(STAGES):
         if only and stage.name not in only:
             continue
+        # A stage run alone reads its predecessors' outputs: they must be this scene's and config's, and made
+        # from what the stages before them hold now (`--only radar flow` with a new radar config leaves the
+        # masks between them stale). For the first stage asked for, this is checked before anything runs.
+        for earlier in STAGES[:position] if only else ():
+            stale = None if earlier.name in only else stage_difference(
+                prepared / earlier.name, getattr(config, earlier.name), fingerprint)
+            if stale:
+                raise ValueError(f"{stale}; the later stages read it: add {earlier.name} to --only, or run "
+                                 f"without --only")
         stage_dir = prepared / stage.name
         stage_config = getattr(config, stage.name)
         if not force and not upstream_changed and stage_is_current(stage_dir, stage_config, fingerprint):
@@ -226,8 +252,10 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
             scene, prepared / "radar")
         with atomic_directory(stage_dir, overwrite=True) as tmp:
             result = run(stage_scene, tmp, stage_config, bar)
+            # The stamps of the outputs it read: a later `--only <earlier stage> --force` makes it stale.
             atomic_write_json(tmp / STAGE_MARKER, {"stage": stage.name, "config": to_dict(stage_config),
-                                                   "scene": fingerprint, "result": result})
+                                                   "scene": fingerprint, "result": result,
+                                                   "inputs": stage_stamps(prepared, stage.name)})
         status[stage.name] = "ran"
     return status
 

@@ -289,12 +289,13 @@ def existing_run_conflict(out: Path, config, resume: bool) -> str | None:
 
 def check_prepared_scene(scene: Path, prepared: Path) -> None:
     """Refuse (ValueError) a prepared folder whose stages were made for another ``scene.json``
-    than ``scene``'s: a run trained on them would mix two scenes. A scene that cannot be read and
-    stages that are missing are left to the trainer, which names them."""
+    than ``scene``'s, or from outputs of an earlier stage that was redone since (``prepare --only radar
+    --force`` leaves the flow of the old radar objects): a run trained on them would mix two scenes or two
+    front ends. A scene that cannot be read and stages that are missing are left to the trainer, which names them."""
     import hashlib
     import json
 
-    from radar4dgs.apps.prepare import STAGE_MARKER, STAGES
+    from radar4dgs.apps.prepare import STAGE_MARKER, STAGES, inputs_difference
 
     try:
         fingerprint = hashlib.sha256((scene / "scene.json").read_bytes()).hexdigest()
@@ -303,9 +304,13 @@ def check_prepared_scene(scene: Path, prepared: Path) -> None:
     for stage in STAGES:
         marker = prepared / stage.name / STAGE_MARKER
         try:
-            made_for = json.loads(marker.read_text(encoding="utf-8")).get("scene")
+            saved = json.loads(marker.read_text(encoding="utf-8"))
+            made_for = saved.get("scene")
         except (OSError, ValueError, AttributeError):
             continue
         if made_for != fingerprint:
             raise ValueError(f"{prepared / stage.name}: prepared for another scene.json than {scene / 'scene.json'}; "
                              f"run `radar4dgs prepare {scene} --out {prepared}`")
+        redone = inputs_difference(prepared / stage.name, saved)
+        if redone:
+            raise ValueError(f"{redone}; run `radar4dgs prepare {scene} --out {prepared}` to bring it up to date")
