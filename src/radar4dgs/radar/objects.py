@@ -50,10 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
+from radar4dgs.radar.anchor import anchored_position, track_lengths
 from radar4dgs.radar.config import RadarObjectConfig
 from radar4dgs.radar.doppler import angle_jacobians
 from radar4dgs.radar.least_squares import direction_noise_gram
-from radar4dgs.radar.tracking import smooth_tracks, track_detections
+from radar4dgs.radar.tracking import TrackedFrame, smooth_tracks, track_detections
 
 OBJECTS_FILE = "objects.json"
 # The objects with every cluster's outliers fitted again (RadarObjectConfig.split_outliers), beside objects.json.
@@ -255,6 +256,7 @@ class Detection:
         fit: its :class:`VelocityFit` (world x, y): the object's velocity field at the radar.
         points: (K,) int64 scan rows of the inlier returns; outliers: (L,) the cluster's other rows.
         radar: (3,) world position of the radar at the scan (the point where ``fit`` holds).
+        planar: (K, 2) world x, y of the inlier returns (``RadarObjectConfig.anchor_visible_end``); None: unknown.
     """
 
     centroid: np.ndarray
@@ -262,6 +264,7 @@ class Detection:
     points: np.ndarray
     outliers: np.ndarray
     radar: np.ndarray
+    planar: np.ndarray | None = None
 
 
 def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, radar_to_world: np.ndarray,
@@ -304,7 +307,8 @@ def detect_objects(xyz: np.ndarray, v_r_comp: np.ndarray, dynamic: np.ndarray, r
             if fit.inliers.sum() < needed:
                 break
             detections.append(Detection(p_world[members[fit.inliers]].mean(axis=0), fit,
-                                        rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy()))
+                                        rows[members[fit.inliers]], rows[members[~fit.inliers]], translation.copy(),
+                                        p_world[members[fit.inliers], :2]))
             if not config.split_outliers or fit.inliers.all():
                 break
             # Two returns fit some planar velocity exactly, so a further object never needs fewer than three.
@@ -344,6 +348,33 @@ def object_record(detection: Detection, track: int, state: np.ndarray, covarianc
             "outliers": [int(i) for i in detection.outliers]}
 
 
+def _track(stamps: np.ndarray, z: list[np.ndarray], R: list[np.ndarray], config: RadarObjectConfig,
+           radars: np.ndarray) -> list[TrackedFrame]:
+    tracked = track_detections(stamps, z, R, config, radars)
+    return smooth_tracks(stamps, z, R, tracked, config, radars) if config.smooth else tracked
+
+
+def anchored_measurements(detections: list[list[Detection]], tracked: list[TrackedFrame], z: list[np.ndarray],
+                          config: RadarObjectConfig) -> list[np.ndarray]:
+    """The tracker's T measurement arrays ``z`` (M_t, 4) with the position of each detection of a moving track
+    that has a length moved to its end facing the radar (:mod:`.anchor`), on the headings of ``tracked`` (a
+    first tracking pass); the other rows as given."""
+    planar = [[d.planar if d.planar is not None else d.centroid[None, :2] for d in frame] for frame in detections]
+    velocities = [frame.states[:, 2:4] for frame in tracked]
+    lengths = track_lengths([frame.ids for frame in tracked], velocities, planar, config.anchor_min_speed,
+                            config.anchor_min_scans, config.anchor_length_quantile)
+    out = [np.array(frame, dtype=np.float64, copy=True) for frame in z]
+    for t, frame in enumerate(detections):
+        for j, detection in enumerate(frame):
+            length = lengths.get(int(tracked[t].ids[j]))
+            speed = float(np.linalg.norm(velocities[t][j]))
+            if length is None or speed < config.anchor_min_speed or detection.planar is None:
+                continue
+            out[t][j, :2] = anchored_position(detection.planar, detection.centroid[:2], velocities[t][j] / speed,
+                                              detection.radar[:2], length)
+    return out
+
+
 def track_objects(names: list[str], timestamps: np.ndarray, detections: list[list[Detection]],
                   config: RadarObjectConfig | None = None) -> dict:
     """The ``objects.json`` document (module doc) of T frames' detections, tracked in the world."""
@@ -354,9 +385,10 @@ def track_objects(names: list[str], timestamps: np.ndarray, detections: list[lis
     # The radar's planar position at each scan (the point where every fit of that scan holds).
     radars = np.array([frame[0].radar[:2] if frame else np.zeros(2) for frame in detections]).reshape(-1, 2)
     stamps = np.asarray(timestamps, dtype=np.float64)
-    tracked = track_detections(stamps, z, R, config, radars)
-    if config.smooth:
-        tracked = smooth_tracks(stamps, z, R, tracked, config, radars)
+    tracked = _track(stamps, z, R, config, radars)
+    if config.anchor_visible_end:
+        z = anchored_measurements(detections, tracked, z, config)
+        tracked = _track(stamps, z, R, config, radars)
     frames = []
     for name, stamp, found, out in zip(names, timestamps, detections, tracked, strict=True):
         objects = [object_record(d, out.ids[k], out.states[k], out.covariances[k], out.turning[k])
