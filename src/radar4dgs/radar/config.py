@@ -126,6 +126,12 @@ class RadarObjectConfig:
     anchor_min_scans: int = 3
     # See anchor_visible_end: which quantile of those scans' extents is the object's length.
     anchor_length_quantile: float = 0.9
+    # See anchor_visible_end: a scan is anchored only with this many returns and with the end facing the radar
+    # by at least anchor_min_aspect (|cos| of the heading against the line of sight); the track's other scans keep
+    # the centroid with an along-heading std of half its length. Why: a car 70 m out with 2-4 returns a scan and
+    # seen nearly side-on shows no return on its end face, and its anchored position lay 1.3-3.3 m off.
+    anchor_min_returns: int = 4
+    anchor_min_aspect: float = 0.3
 
 
 @dataclass

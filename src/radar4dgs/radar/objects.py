@@ -355,24 +355,34 @@ def _track(stamps: np.ndarray, z: list[np.ndarray], R: list[np.ndarray], config:
 
 
 def anchored_measurements(detections: list[list[Detection]], tracked: list[TrackedFrame], z: list[np.ndarray],
-                          config: RadarObjectConfig) -> list[np.ndarray]:
-    """The tracker's T measurement arrays ``z`` (M_t, 4) with the position of each detection of a moving track
-    that has a length moved to its end facing the radar (:mod:`.anchor`), on the headings of ``tracked`` (a
-    first tracking pass); the other rows as given."""
+                          R: list[np.ndarray], config: RadarObjectConfig) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The tracker's T measurement arrays ``z`` (M_t, 4) and covariances ``R`` (M_t, 4, 4) for a second pass on
+    the headings of ``tracked`` (the first): each detection of a moving track that has a length is measured at its
+    end facing the radar (:mod:`.anchor`) when it has ``anchor_min_returns`` and that end faces the radar by
+    ``anchor_min_aspect``, else at its centroid with an along-heading std of half the length; the other rows
+    as given."""
     planar = [[d.planar if d.planar is not None else d.centroid[None, :2] for d in frame] for frame in detections]
     velocities = [frame.states[:, 2:4] for frame in tracked]
     lengths = track_lengths([frame.ids for frame in tracked], velocities, planar, config.anchor_min_speed,
                             config.anchor_min_scans, config.anchor_length_quantile)
-    out = [np.array(frame, dtype=np.float64, copy=True) for frame in z]
+    z_out = [np.array(frame, dtype=np.float64, copy=True) for frame in z]
+    R_out = [np.array(frame, dtype=np.float64, copy=True) for frame in R]
     for t, frame in enumerate(detections):
         for j, detection in enumerate(frame):
             length = lengths.get(int(tracked[t].ids[j]))
             speed = float(np.linalg.norm(velocities[t][j]))
             if length is None or speed < config.anchor_min_speed or detection.planar is None:
                 continue
-            out[t][j, :2] = anchored_position(detection.planar, detection.centroid[:2], velocities[t][j] / speed,
-                                              detection.radar[:2], length)
-    return out
+            heading = velocities[t][j] / speed
+            sight = detection.centroid[:2] - detection.radar[:2]
+            aspect = abs(float(heading @ sight)) / max(float(np.linalg.norm(sight)), 1e-9)
+            if len(detection.planar) >= config.anchor_min_returns and aspect >= config.anchor_min_aspect:
+                z_out[t][j, :2] = anchored_position(detection.planar, detection.centroid[:2], heading,
+                                                    detection.radar[:2], length)
+            else:
+                along_var = max(config.centroid_std, length / 2) ** 2 - config.centroid_std ** 2
+                R_out[t][j, :2, :2] += along_var * np.outer(heading, heading)
+    return z_out, R_out
 
 
 def track_objects(names: list[str], timestamps: np.ndarray, detections: list[list[Detection]],
@@ -387,7 +397,7 @@ def track_objects(names: list[str], timestamps: np.ndarray, detections: list[lis
     stamps = np.asarray(timestamps, dtype=np.float64)
     tracked = _track(stamps, z, R, config, radars)
     if config.anchor_visible_end:
-        z = anchored_measurements(detections, tracked, z, config)
+        z, R = anchored_measurements(detections, tracked, z, R, config)
         tracked = _track(stamps, z, R, config, radars)
     frames = []
     for name, stamp, found, out in zip(names, timestamps, detections, tracked, strict=True):
