@@ -81,3 +81,36 @@ def test_a_crossing_car_whose_returns_slide_along_it_is_tracked_at_its_speed():
     assert errors[False] < -0.5          # the centroid's slide read as a slower car
     # Near the radar's axis (|cos| of the aspect below 0.3) the scans keep the centroid, loosely: what is left.
     assert abs(errors[True]) < 0.3 and abs(errors[True]) < 0.5 * abs(errors[False]), errors
+
+
+def test_scans_with_few_returns_or_seen_side_on_keep_the_centroid_loosely_along_the_heading():
+    """Three scans of one track heading +y at 10 m/s: 6 returns with the rear facing the radar at |cos| 0.6 are
+    anchored; 3 returns, or 6 seen side-on (|cos| 0.1), keep the centroid with std max(1, L / 2) along the heading."""
+    from radar4dgs.radar.objects import anchored_measurements, measurement
+    from radar4dgs.radar.tracking import TrackedFrame
+
+    config = RadarObjectConfig(anchor_visible_end=True, anchor_min_scans=1)
+    heading, length = np.array([0.0, 1.0]), 4.5
+    scans = [(np.array([30.0, 22.5]), 6), (np.array([30.0, 22.5]), 3), (np.array([30.0, 3.0]), 6)]
+    detections, z, R, tracked = [], [], [], []
+    for centre, n in scans:
+        # The rear face's two corners' middle and the near side from the rear end forward, 0.9 m apart.
+        planar = np.array([[0.0, -length / 2]] + [[-0.9, -length / 2 + 0.9 * k] for k in range(n - 1)]) + centre
+        xyz = np.column_stack([planar, np.full(len(planar), 0.8)])
+        d = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+        found = detect_objects(xyz, d[:, :2] @ (10.0 * heading), np.ones(n, bool), np.eye(4))
+        detections.append(found)
+        pairs = [measurement(det, config) for det in found]
+        z.append(np.array([p[0] for p in pairs]))
+        R.append(np.array([p[1] for p in pairs]))
+        tracked.append(TrackedFrame(np.array([0]), np.array([[*centre, *(10.0 * heading), 0.0]]),
+                                    np.eye(5)[None], np.zeros(1)))
+    length_seen = track_lengths([f.ids for f in tracked], [f.states[:, 2:4] for f in tracked],
+                                [[det.planar for det in frame] for frame in detections], 2.0, 1, 0.9)[0]
+    z2, R2 = anchored_measurements(detections, tracked, z, R, config)
+    np.testing.assert_allclose(z2[0][0, :2] @ heading, 22.5 - length / 2 + length_seen / 2, atol=1e-9)
+    for k in (1, 2):
+        np.testing.assert_array_equal(z2[k], z[k])
+        along = max(config.centroid_std, length_seen / 2) ** 2
+        np.testing.assert_allclose(R2[k][0, :2, :2], np.diag([config.centroid_std ** 2, along]), atol=1e-12)
+    np.testing.assert_array_equal(R2[0], R[0])
