@@ -15,7 +15,6 @@ from the last checkpoint (the trainer's resume, which continues exactly as the u
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import re
 import shutil
@@ -26,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from radar4dgs.apps.reuse import config_digest, read_json
+from radar4dgs.apps.reuse import config_digest, read_json, scene_fingerprint
 from radar4dgs.io.atomic import atomic_write_json
 
 SCENES_DIR = "scenes"
@@ -79,14 +78,6 @@ def train_config(spec: SceneSpec):
     from radar4dgs.train.variants import variant_config
 
     return variant_config(spec.preset, spec.method, **spec.overrides)
-
-
-def scene_fingerprint(scene: Path) -> str | None:
-    """sha256 of the scene's ``scene.json`` (None when it cannot be read)."""
-    try:
-        return hashlib.sha256((Path(scene) / "scene.json").read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 def request(spec: SceneSpec) -> dict[str, Any]:

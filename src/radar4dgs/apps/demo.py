@@ -10,7 +10,6 @@ since is retrained.
 
 from __future__ import annotations
 
-import hashlib
 import shutil
 import sys
 import time
@@ -18,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from radar4dgs.apps.reuse import config_digest, run_conflict, scene_conflict
+from radar4dgs.apps.reuse import config_digest, run_conflict, scene_conflict, scene_fingerprint
 from radar4dgs.apps.reuse import read_json as _read_json
 from radar4dgs.apps.reuse import request_text as _request
 from radar4dgs.config import PresetName, preset
@@ -28,10 +27,6 @@ __all__ = ["DEMO_FILE", "DEMO_OUTPUTS", "DemoCommand", "run_conflict", "scene_co
 DEMO_FILE = "demo.json"
 # What `--force` removes from OUT: everything the demo writes there, nothing else.
 DEMO_OUTPUTS = ("scene", "prepared", "run", "inspect.png", "frontend_metrics.json", DEMO_FILE)
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @dataclass
@@ -151,7 +146,7 @@ class DemoCommand:
         from radar4dgs.train.trainer import train_run
 
         print(f"[5] train the Gaussian scene (three stages, '{self.preset}' preset) -> {run_dir}")
-        inputs = {"scene": _sha256(scene_dir / "scene.json"), "prepared": stage_stamps(prepared)}
+        inputs = {"scene": scene_fingerprint(scene_dir), "prepared": stage_stamps(prepared)}
         demo = _read_json(self.out / DEMO_FILE) or {}
         # A run trained on other inputs than the current ones is stale: demo.json names the scene
         # and prepared stages it was trained on; in a folder from an older demo without it, a stage

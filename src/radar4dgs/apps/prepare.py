@@ -21,6 +21,7 @@ import tyro
 from tqdm import tqdm
 
 from radar4dgs.apps.options import default_is
+from radar4dgs.apps.reuse import scene_fingerprint
 from radar4dgs.config import PresetName, save_config, to_dict
 from radar4dgs.depth.config import DepthConfig, ObjectDepthConfig
 from radar4dgs.io.atomic import atomic_directory, atomic_write_json, remove_dead_temporaries
@@ -141,11 +142,6 @@ STAGES: tuple[Stage, ...] = (
 StageName = Literal["radar", "depth", "masks", "object_depth", "flow"]
 
 
-def scene_fingerprint(scene: Scene) -> str:
-    """sha256 of ``scene.json``: a stage's outputs are reused only for the same scene metadata."""
-    return hashlib.sha256((scene.root / "scene.json").read_bytes()).hexdigest()
-
-
 def stage_stamps(prepared: Path, before: str | None = None) -> dict[str, str]:
     """sha256 of each prepared stage's ``stage.json`` (its config, its scene and its result), by stage
     name, for the stages before ``before`` (all when None); stages not prepared are left out."""
@@ -216,7 +212,8 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
                 progress: bool) -> dict[str, str]:
     prepared.mkdir(parents=True, exist_ok=True)
     save_config(config, prepared / "config.json")
-    fingerprint = scene_fingerprint(scene)
+    # A stage's outputs are reused only for the same scene metadata.
+    fingerprint = scene_fingerprint(scene.root)
     status: dict[str, str] = {}
     # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
     upstream_changed = False

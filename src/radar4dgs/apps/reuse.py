@@ -30,6 +30,15 @@ def read_json(path: Path) -> dict[str, Any] | None:
     return value if isinstance(value, dict) else None
 
 
+def scene_fingerprint(scene_dir: Path) -> str | None:
+    """sha256 of the scene's ``scene.json`` (None when it cannot be read): what prepared stages, runs and batch
+    scenes record of the scene they were made from."""
+    try:
+        return hashlib.sha256((Path(scene_dir) / "scene.json").read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
 def config_digest(config: Any) -> str:
     """The first 12 hex digits of the sha256 of a config (a dataclass or its dict), keys sorted:
     the same digest as :func:`radar4dgs.evaluate.reconstruction.config_hash` of a run's config."""

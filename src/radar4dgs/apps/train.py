@@ -292,14 +292,13 @@ def check_prepared_scene(scene: Path, prepared: Path) -> None:
     than ``scene``'s, or from outputs of an earlier stage that was redone since (``prepare --only radar
     --force`` leaves the flow of the old radar objects): a run trained on them would mix two scenes or two
     front ends. A scene that cannot be read and stages that are missing are left to the trainer, which names them."""
-    import hashlib
     import json
 
     from radar4dgs.apps.prepare import STAGE_MARKER, STAGES, inputs_difference
+    from radar4dgs.apps.reuse import scene_fingerprint
 
-    try:
-        fingerprint = hashlib.sha256((scene / "scene.json").read_bytes()).hexdigest()
-    except OSError:
+    fingerprint = scene_fingerprint(scene)
+    if fingerprint is None:
         return
     for stage in STAGES:
         marker = prepared / stage.name / STAGE_MARKER
