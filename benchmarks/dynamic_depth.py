@@ -3,7 +3,8 @@
 the error of its prepared depth on the same moving pixels (the input the depth term pulls toward) and
 of its rendered depth there, frame by frame (what the images show; the Gaussian count includes hidden ones),
 and the trained field's scene-flow error on the true moving pixels (`field_epe`, m; as `radar4dgs fit-motion`
-scores a standalone fit).
+scores a standalone fit), also per moving object of the truth (`field_by_object`,
+:mod:`radar4dgs.evaluate.field_objects`).
 
     python benchmarks/dynamic_depth.py RUN [RUN ...] [--out JSON]
 
@@ -17,6 +18,7 @@ import json
 from pathlib import Path
 
 from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth, run_prepared_depth, run_rendered_depth
+from radar4dgs.evaluate.field_objects import field_error_by_object, format_objects
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.run import load_run
@@ -24,10 +26,13 @@ from radar4dgs.train.fit_motion import evaluate_sceneflow
 
 
 def field_epe(run_dir: Path) -> dict:
-    """The run's trained field, scored as a standalone fit is: mean error (m) per pixel and by image motion."""
+    """The run's trained field, scored as a standalone fit is: mean error (m) per pixel and by image motion,
+    and per moving object (``by_object``)."""
     run = load_run(run_dir, device="cpu")
-    result = evaluate_sceneflow(run.model.field, run.scene, normalized_times(run.scene))
-    return {key: result[key] for key in ("epe", "epe_by_image_motion", "points")}
+    times = normalized_times(run.scene)
+    result = evaluate_sceneflow(run.model.field, run.scene, times)
+    return {**{key: result[key] for key in ("epe", "epe_by_image_motion", "points")},
+            "by_object": field_error_by_object(run.model.field, run.scene, times)}
 
 
 def run_row(run: Path) -> dict:
@@ -58,6 +63,7 @@ def main() -> None:
               f"|p90| {d['p90_abs']:.3f}  >10 % behind {d['behind']:.2f}  (prepared depth "
               f"{row['prepared_depth']['median']:+.3f}, rendered {row['rendered_depth']['median']:+.3f})  "
               f"field {row['field_epe']['epe']:.3f} m  PSNR* {row['nvs_psnr_dyn']:.2f}", flush=True)
+        print(*format_objects(row["field_epe"]["by_object"]), sep="\n", flush=True)
         atomic_write_json(args.out, {"command": "python benchmarks/dynamic_depth.py RUN [RUN ...]", "rows": rows})
 
 

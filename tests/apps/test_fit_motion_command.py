@@ -26,7 +26,14 @@ def test_fit_motion_command(motion_scene, motion_prepared, tmp_path, capsys):
     result = json.loads((out / "results.json").read_text())
     assert result["use_flow"] and not result["use_radar"] and result["sceneflow"]["epe"] is not None
     assert (out / "field.pt").is_file() and (out / "config.json").is_file()
-    assert "scene-flow EPE" in capsys.readouterr().out
+    # Per moving object too: the points of the objects add up to every scored moving pixel.
+    objects = result["sceneflow_by_object"]["objects"]
+    assert len(objects) == 2 and result["sceneflow_by_object"]["unassigned_points"] == 0
+    assert sum(o["points"] for o in objects) == result["sceneflow"]["points"]
+    weighted = sum(o["epe"] * o["points"] for o in objects) / result["sceneflow"]["points"]
+    assert weighted == pytest.approx(result["sceneflow"]["epe"], rel=1e-4)
+    printed = capsys.readouterr().out
+    assert "scene-flow EPE" in printed and printed.count("field error") == 2
     missing = FitMotionCommand(scene=motion_scene.root, prepared=tmp_path / "nothing", preset="tiny",
                                config=preset(MotionConfig, "tiny"), quiet=True)
     with pytest.raises((FileNotFoundError, ValueError), match="depth_source='oracle'"):

@@ -39,7 +39,8 @@ class FitMotionCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": MotionConfig}
 
     def run(self) -> int:
-        from radar4dgs.io.scene import read_scene
+        from radar4dgs.evaluate.field_objects import field_error_by_object, format_objects
+        from radar4dgs.io.scene import normalized_times, read_scene
         from radar4dgs.radar.sync import prepared_synced_scene
         from radar4dgs.train.fit_motion import run_fit, write_motion_outputs
 
@@ -52,6 +53,8 @@ class FitMotionCommand:
                                       self.recompute_flow, evaluate=scene.has("gt/flow")
                                       and scene.has("gt/depth") and scene.has("gt/dynamic_mask"),
                                       progress=not self.quiet)
+        if result.get("sceneflow"):
+            result["sceneflow_by_object"] = field_error_by_object(deformation, scene, normalized_times(scene))
         write_motion_outputs(out, deformation, result, self.config)
         terms = " + ".join(name for name, on in (("flow", self.use_flow), ("radar", self.use_radar)) if on)
         print(f"fit ({terms}) in {result['fit_seconds']:.1f} s")
@@ -59,6 +62,9 @@ class FitMotionCommand:
         if metrics and metrics.get("epe") is not None:
             print(f"dynamic scene-flow EPE {metrics['epe']:.3f} m over {metrics['points']} pixels of "
                   f"{metrics['pairs']} adjacent pairs (not moving: {metrics['zero_motion_epe']:.3f} m)")
+            if result["sceneflow_by_object"]["objects"]:
+                print("per moving object of the generator's truth:", *format_objects(result["sceneflow_by_object"]),
+                      sep="\n")
         else:
             print("no gt/flow, gt/depth and gt/dynamic_mask: scene-flow error not evaluated")
         print(f"wrote {out / 'results.json'} and {out / 'field.pt'}")

@@ -69,6 +69,31 @@ def gt_scene_flow(scene, index: int, next_index: int) -> tuple[np.ndarray, np.nd
     return world_i.reshape(height, width, 3), world.reshape(height, width, 3), valid.reshape(height, width)
 
 
+def moving_surface_points(scene, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The true surface points (N, 3) world of frame ``index``'s ``gt/dynamic_mask`` pixels with a
+    finite positive ``gt/depth``, their one-frame displacement (N, 3) from ``gt/flow``, their pixels
+    (N, 2) float64 (column, row) and z-depths (N,); None where the frame has no such pixel."""
+    depth = scene.load_optional("gt/depth", index).astype(np.float64)
+    mask = scene.load_optional("gt/dynamic_mask", index) & np.isfinite(depth) & (depth > 0)
+    if not mask.any():
+        return None
+    rows, cols = np.nonzero(mask)
+    pixels = np.stack([cols, rows], axis=1).astype(np.float64)
+    world = backproject(pixels, depth[rows, cols], scene.camera.K, scene.world_to_camera(index))
+    return world, scene.load_optional("gt/flow", index).astype(np.float64)[mask], pixels, depth[rows, cols]
+
+
+def in_object_box(world: np.ndarray, pose: np.ndarray, dims, margin: float = 0.0) -> np.ndarray:
+    """(N,) bool: which (N, 3) world points lie in a generator object's box at one frame: ``pose``
+    (4, 4) object-to-world with its origin on the ground under the box's centre, ``dims`` (length,
+    width, height) in metres, the box grown by ``margin`` on every side."""
+    pose = np.asarray(pose, dtype=np.float64)
+    local = (np.asarray(world, dtype=np.float64) - pose[:3, 3]) @ pose[:3, :3]
+    length, width, height = dims
+    return ((np.abs(local[:, 0]) <= length / 2 + margin) & (np.abs(local[:, 1]) <= width / 2 + margin)
+            & (local[:, 2] >= -margin) & (local[:, 2] <= height + margin))
+
+
 def image_flow(moved: np.ndarray, valid: np.ndarray, scene, index: int) -> tuple[np.ndarray, np.ndarray]:
     """The 2D flow (H, W, 2) float64 that takes each pixel to where its moved point (H, W, 3) world
     projects in frame ``index``, and where that is defined (H, W) bool: ``valid`` and in front of

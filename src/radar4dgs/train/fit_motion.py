@@ -42,6 +42,7 @@ from radar4dgs.motion.association import associate_velocities, load_radar_dynami
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import frame_pairs, load_depth, load_flow_pairs, load_mask, prepare_flow
 from radar4dgs.motion.lift import backproject
+from radar4dgs.motion.truth import moving_surface_points
 from radar4dgs.train.config import FitConfig, MotionConfig
 from radar4dgs.train.object_points import (
     ObjectPoints,
@@ -365,14 +366,10 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
     test = set(scene.test_indices)
     errors, zero, held_out, image_motion, roundtrip = [], [], [], [], 0.0
     for i in range(len(scene) - 1):
-        depth = scene.load_optional("gt/depth", i).astype(np.float64)
-        mask = scene.load_optional("gt/dynamic_mask", i) & np.isfinite(depth) & (depth > 0)
-        if not mask.any():
+        surface = moving_surface_points(scene, i)
+        if surface is None:
             continue
-        motion = scene.load_optional("gt/flow", i).astype(np.float64)[mask]
-        rows, cols = np.nonzero(mask)
-        x = backproject(np.stack([cols, rows], axis=1).astype(np.float64), depth[rows, cols],
-                        scene.camera.K, scene.world_to_camera(i))
+        x, motion, pixels, depth = surface
         predicted = []
         with torch.no_grad():
             for start in range(0, len(x), chunk):
@@ -388,9 +385,8 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
         held_out.append(np.full(len(error), i in test or (i + 1) in test))
         # The pixels' image motion from the gt arrays already loaded (NaN: behind the next camera).
         keep, moved = project_motion(scene.camera.K, np.linalg.inv(scene.world_to_camera(i)),
-                                     scene.world_to_camera(i + 1), np.stack([cols, rows], axis=1).astype(np.float64),
-                                     depth[rows, cols], motion, None, with_keep=True)
-        pixel_motion = np.full(len(rows), np.nan)
+                                     scene.world_to_camera(i + 1), pixels, depth, motion, None, with_keep=True)
+        pixel_motion = np.full(len(pixels), np.nan)
         pixel_motion[keep] = moved
         image_motion.append(pixel_motion)
     if not errors:
