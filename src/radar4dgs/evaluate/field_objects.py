@@ -60,9 +60,10 @@ def field_error_by_object(field, scene, times: np.ndarray) -> dict[str, Any]:
     ``role``, ``points``, ``frames`` (first and last frame it was scored at), ``epe`` (m, mean over its
     points), ``epe_p90``, ``motion`` (m, mean true one-frame displacement: the error of a field that
     leaves it still) and ``worst_frames`` ([{frame, epe}], its frames of largest mean error); and
-    ``unassigned_points``, the moving points in no object's box. Empty without per-object truth.
+    ``unassigned_points``, the moving points in no object's box. Empty without per-object truth (boxes).
     """
-    truth = moving_ground_truth(scene)
+    # Scenes written before the generator recorded its boxes have no "dims": nothing to assign points to.
+    truth = [obj for obj in moving_ground_truth(scene) if len(obj.get("dims") or ()) == 3]
     errors: dict[int, list[np.ndarray]] = {}
     motions: dict[int, list[np.ndarray]] = {}
     by_frame: dict[int, list[tuple[int, float]]] = {}

@@ -190,7 +190,9 @@ class LossConfig:
     over_movers_margin: float = 0.05
     flow_weight: float = 1.0  # weight of L_flow (m^2) on the field
     radar_weight: float = 0.5  # weight of L_rad (m) on the field (as the standalone fit's radar_weight)
-    # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off (0.1: -0.59 dB PSNR* on seed 214).
+    # Weight of L_vel (objects' full velocity, FitConfig.velocity_weight); 0 = off. At 0.1 the field moves every
+    # object nearer the truth (crossing cars too), yet novel-view PSNR* fell on all five strict tuning seeds (mean
+    # -1.17 dB; -0.59 on hard seed 214 before): docs/research/training.md, the velocity term.
     velocity_weight: float = 0.0
     motion_batch: int = 1024  # flow pairs and radar points drawn per iteration for L_flow, L_rad, L_vel
     # Weight of L_acc (m^2, train.path_prior): the field's paths of observed moving points bent within

@@ -119,6 +119,9 @@ class RadarObjectConfig:
     # changes (a car crossing 40 m ahead at 17 m/s: +1.1 -> -1.9 m in 3.2 s), and the track reads that as
     # 0.95 m/s too slow; the end facing the radar stays put. A second tracking pass, on the first pass's
     # headings; the length is the track's anchor_length_quantile of its scans' extents along the heading.
+    # The reported velocity is then the body's at that point (about the box centre), not at the returns' centroid:
+    # moved to the centroid by the track's yaw rate, the strict tuning seeds' p90 error against the truth's velocity
+    # rose on four of five (409: 0.23 -> 0.39 m/s) and against the body's at the centroid fell by at most 0.014.
     # Opt-in: velocity p90 over 36 tuning scenes 0.503 -> 0.424 m/s, but novel-view PSNR* -0.45 dB at the grid
     # budget on three strict tuning seeds, one run each (docs/research/motion.md, fifteenth pass).
     anchor_visible_end: bool = False
