@@ -3,7 +3,7 @@
 the error of its prepared depth on the same moving pixels (the input the depth term pulls toward) and
 of its rendered depth there, frame by frame (what the images show; the Gaussian count includes hidden ones),
 and the trained field's scene-flow error on the true moving pixels (`field_epe`, m; as `radar4dgs fit-motion`
-scores a standalone fit), also per moving object of the truth (`field_by_object`,
+scores a standalone fit), also per moving object of the truth (`field_epe.by_object`,
 :mod:`radar4dgs.evaluate.field_objects`).
 
     python benchmarks/dynamic_depth.py RUN [RUN ...] [--out JSON]
