@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from radar4dgs.evaluate.field_objects import box_owners, field_error_by_object
 from radar4dgs.evaluate.frontend import moving_ground_truth
 from radar4dgs.io.scene import normalized_times
-from radar4dgs.motion.truth import in_object_box, moving_surface_points
+from radar4dgs.motion.truth import in_boxes, moving_surface_points
 
 
 class ConstantStep(torch.nn.Module):
@@ -72,7 +72,7 @@ def test_a_point_is_in_a_turned_box_exactly_when_its_local_coordinates_are(yaw, 
     faces = [abs(abs(local[0]) - dims[0] / 2 - margin), abs(abs(local[1]) - dims[1] / 2 - margin),
              abs(local[2] + margin), abs(local[2] - dims[2] - margin)]
     if min(faces) > 1e-9:
-        assert bool(in_object_box(world, pose, dims, margin)[0]) == expected
+        assert bool(in_boxes(world, pose[None], np.array([dims]), margin)[0, 0]) == expected
 
 
 def test_overlapping_boxes_give_a_point_to_the_nearer_centre():

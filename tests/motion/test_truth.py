@@ -10,16 +10,12 @@ from radar4dgs.config import preset
 from radar4dgs.motion.config import FlowConfig
 from radar4dgs.motion.flow import load_flow_pairs, prepare_flow
 from radar4dgs.motion.metrics import gt_flow_2d, motion_frontend_metrics
-from radar4dgs.motion.truth import gt_scene_flow
+from radar4dgs.motion.truth import gt_scene_flow, in_boxes
 
 
 def _object_of(world: np.ndarray, obj: dict, frame: int) -> np.ndarray:
     """(N,) bool: which (N, 3) world points lie in ``obj``'s box at ``frame`` (grown by 0.2 m)."""
-    pose = np.asarray(obj["poses"][frame])
-    local = (world - pose[:3, 3]) @ pose[:3, :3]
-    length, width, height = obj["dims"]
-    return ((np.abs(local[:, 0]) <= length / 2 + 0.2) & (np.abs(local[:, 1]) <= width / 2 + 0.2)
-            & (local[:, 2] >= -0.2) & (local[:, 2] <= height + 0.2))
+    return in_boxes(world, np.asarray(obj["poses"][frame])[None], np.array([obj["dims"]]), 0.2)[0]
 
 
 def test_two_frame_motion_is_each_movers_own_rigid_motion(motion_scene):

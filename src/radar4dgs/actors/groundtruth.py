@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radar4dgs.motion.truth import in_boxes
+
 # A mover is in view in a frame when its box centre is in the image, in front of the camera and within
 # this range (m). It is visible there when, besides, at least MIN_OWN_PIXELS of its own surface show
 # (pixels of gt/dynamic_mask whose gt/depth puts them inside its box): a pedestrian behind a passing car is
@@ -52,11 +54,7 @@ def own_pixel_counts(scene, frame: int, poses: np.ndarray, dims: np.ndarray) -> 
         return None
     pixels = np.argwhere((mask > 0) & np.isfinite(depth))
     world = backproject(depth, np.asarray(scene.camera.K, dtype=np.float64), scene.world_to_camera(frame), pixels)
-    # World to box frame: R^T (x - t), batched over the boxes.
-    local = np.einsum("mji,mpj->mpi", poses[:, :3, :3], world[None] - poses[:, None, :3, 3])
-    low = np.stack([-dims[:, 0] / 2, -dims[:, 1] / 2, np.zeros(len(dims))], axis=1) - OWN_PIXEL_MARGIN
-    high = np.stack([dims[:, 0] / 2, dims[:, 1] / 2, dims[:, 2]], axis=1) + OWN_PIXEL_MARGIN
-    return ((local >= low[:, None]) & (local <= high[:, None])).all(axis=2).sum(axis=1)
+    return in_boxes(world, poses, dims, OWN_PIXEL_MARGIN).sum(axis=1)
 
 
 def scene_movers(scene) -> list[Mover]:

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from radar4dgs.evaluate.frontend import moving_ground_truth
-from radar4dgs.motion.truth import in_object_box, moving_surface_points
+from radar4dgs.motion.truth import in_boxes, moving_surface_points
 
 # Metres a generator box is grown by to hold its own surface points: the depth maps are rendered
 # from meshes that touch the box's faces, so points lie on them up to rounding.
@@ -30,16 +30,14 @@ def box_owners(world: np.ndarray, objects: list[dict], frame: int, margin: float
     """(N,) int: the index into ``objects`` (generator moving objects with ``poses`` and ``dims``) whose
     box at ``frame`` holds each of the (N, 3) world points, the one with the nearest box centre where
     grown boxes overlap; -1 where none does."""
-    owners = np.full(len(world), -1, dtype=np.int64)
-    nearest = np.full(len(world), np.inf)
-    for k, obj in enumerate(objects):
-        pose = np.asarray(obj["poses"][frame], dtype=np.float64)
-        inside = in_object_box(world, pose, obj["dims"], margin)
-        centre = pose[:3, 3] + pose[:3, 2] * obj["dims"][2] / 2
-        distance = np.linalg.norm(world - centre, axis=1)
-        better = inside & (distance < nearest)
-        owners[better], nearest[better] = k, distance[better]
-    return owners
+    if not objects:
+        return np.full(len(world), -1, dtype=np.int64)
+    poses = np.stack([np.asarray(obj["poses"][frame], dtype=np.float64) for obj in objects])
+    dims = np.array([obj["dims"] for obj in objects], dtype=np.float64)
+    inside = in_boxes(world, poses, dims, margin)
+    centres = poses[:, :3, 3] + poses[:, :3, 2] * dims[:, 2:3] / 2
+    distance = np.where(inside, np.linalg.norm(np.asarray(world)[None] - centres[:, None], axis=2), np.inf)
+    return np.where(inside.any(axis=0), np.argmin(distance, axis=0), -1)
 
 
 def field_displacement(field, points: np.ndarray, t_from: float, t_to: float, chunk: int = 65536) -> np.ndarray:

@@ -83,15 +83,18 @@ def moving_surface_points(scene, index: int) -> tuple[np.ndarray, np.ndarray, np
     return world, scene.load_optional("gt/flow", index).astype(np.float64)[mask], pixels, depth[rows, cols]
 
 
-def in_object_box(world: np.ndarray, pose: np.ndarray, dims, margin: float = 0.0) -> np.ndarray:
-    """(N,) bool: which (N, 3) world points lie in a generator object's box at one frame: ``pose``
-    (4, 4) object-to-world with its origin on the ground under the box's centre, ``dims`` (length,
-    width, height) in metres, the box grown by ``margin`` on every side."""
-    pose = np.asarray(pose, dtype=np.float64)
-    local = (np.asarray(world, dtype=np.float64) - pose[:3, 3]) @ pose[:3, :3]
-    length, width, height = dims
-    return ((np.abs(local[:, 0]) <= length / 2 + margin) & (np.abs(local[:, 1]) <= width / 2 + margin)
-            & (local[:, 2] >= -margin) & (local[:, 2] <= height + margin))
+def in_boxes(world: np.ndarray, poses: np.ndarray, dims: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """(M, N) bool: which of (N, 3) world points lie in each of M generator boxes at one frame: ``poses``
+    (M, 4, 4) box-to-world with the origin on the ground under the box's centre, ``dims`` (M, 3) length,
+    width and height in metres, each box grown by ``margin`` on every side."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    dims = np.asarray(dims, dtype=np.float64).reshape(-1, 3)
+    world = np.asarray(world, dtype=np.float64)
+    # World to box frame: R^T (x - t), batched over the boxes.
+    local = np.einsum("mji,mpj->mpi", poses[:, :3, :3], world[None] - poses[:, None, :3, 3])
+    low = np.stack([-dims[:, 0] / 2, -dims[:, 1] / 2, np.zeros(len(dims))], axis=1) - margin
+    high = np.stack([dims[:, 0] / 2, dims[:, 1] / 2, dims[:, 2]], axis=1) + margin
+    return ((local >= low[:, None]) & (local <= high[:, None])).all(axis=2)
 
 
 def image_flow(moved: np.ndarray, valid: np.ndarray, scene, index: int) -> tuple[np.ndarray, np.ndarray]:
