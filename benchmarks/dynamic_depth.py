@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 
 from radar4dgs.evaluate.dynamic_depth import run_dynamic_depth, run_prepared_depth, run_rendered_depth
-from radar4dgs.evaluate.field_objects import field_error_by_object, format_objects
+from radar4dgs.evaluate.field_objects import ObjectErrors, format_objects
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.run import load_run
@@ -30,9 +30,9 @@ def field_epe(run_dir: Path) -> dict:
     and per moving object (``by_object``)."""
     run = load_run(run_dir, device="cpu")
     times = normalized_times(run.scene)
-    result = evaluate_sceneflow(run.model.field, run.scene, times)
-    return {**{key: result[key] for key in ("epe", "epe_by_image_motion", "points")},
-            "by_object": field_error_by_object(run.model.field, run.scene, times)}
+    by_object = ObjectErrors(run.scene)
+    result = evaluate_sceneflow(run.model.field, run.scene, times, on_pair=by_object.add)
+    return {**{key: result[key] for key in ("epe", "epe_by_image_motion", "points")}, "by_object": by_object.summary()}
 
 
 def run_row(run: Path) -> dict:

@@ -9,10 +9,12 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from radar4dgs.evaluate.field_objects import box_owners, field_error_by_object
+from radar4dgs.evaluate.field_objects import ObjectErrors, box_owners, field_error_by_object
 from radar4dgs.evaluate.frontend import moving_ground_truth
 from radar4dgs.io.scene import normalized_times
+from radar4dgs.model.field import DeformationField, randomize_
 from radar4dgs.motion.truth import in_boxes, moving_surface_points
+from radar4dgs.train.fit_motion import evaluate_sceneflow
 
 
 class ConstantStep(torch.nn.Module):
@@ -55,6 +57,23 @@ def test_a_field_with_one_objects_velocity_is_exact_on_it_and_off_by_the_differe
     expected = np.linalg.norm(velocities[chosen] - velocities[other]) * dt
     assert math.isclose(by_id[other]["epe"], expected, rel_tol=1e-3)
     assert by_id[other]["worst_frames"][0]["epe"] >= by_id[other]["epe"] - 1e-9
+
+
+def test_grouping_the_sceneflow_pass_gives_the_standalone_scores(motion_scene):
+    # A random field, so every object has its own non-zero error to get right.
+    field = randomize_(DeformationField().double(), generator=torch.Generator().manual_seed(3))
+    field.fit_normalization(np.concatenate([s[0] for i in range(len(motion_scene) - 1)
+                                            if (s := moving_surface_points(motion_scene, i))]))
+    times = normalized_times(motion_scene)
+    shared = ObjectErrors(motion_scene)
+    overall = evaluate_sceneflow(field, motion_scene, times, on_pair=shared.add)
+    grouped, alone = shared.summary(), field_error_by_object(field, motion_scene, times)
+    assert [o["id"] for o in grouped["objects"]] == [o["id"] for o in alone["objects"]]
+    for a, b in zip(grouped["objects"], alone["objects"], strict=True):
+        assert a["points"] == b["points"] and a["epe"] > 0.01
+        assert math.isclose(a["epe"], b["epe"], rel_tol=1e-6) and math.isclose(a["epe_p90"], b["epe_p90"], rel_tol=1e-6)
+    weighted = sum(o["epe"] * o["points"] for o in grouped["objects"]) / overall["points"]
+    assert math.isclose(weighted, overall["epe"], rel_tol=1e-6)
 
 
 @settings(max_examples=50, deadline=None)

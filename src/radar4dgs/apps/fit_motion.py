@@ -39,8 +39,8 @@ class FitMotionCommand:
     PRESET_FIELDS: ClassVar[dict[str, type]] = {"config": MotionConfig}
 
     def run(self) -> int:
-        from radar4dgs.evaluate.field_objects import field_error_by_object, format_objects
-        from radar4dgs.io.scene import normalized_times, read_scene
+        from radar4dgs.evaluate.field_objects import ObjectErrors, format_objects
+        from radar4dgs.io.scene import read_scene
         from radar4dgs.radar.sync import prepared_synced_scene
         from radar4dgs.train.fit_motion import run_fit, write_motion_outputs
 
@@ -49,12 +49,13 @@ class FitMotionCommand:
         # A missing or malformed scene or prepared file raises a user error: one line (radar4dgs.cli).
         # The radar scans re-stamped by the clock offset prepare applied (radar4dgs.radar.sync).
         scene = prepared_synced_scene(read_scene(self.scene), prepared / "radar")
+        by_object = ObjectErrors(scene)
         deformation, result = run_fit(scene, prepared, self.config, self.use_flow, self.use_radar,
                                       self.recompute_flow, evaluate=scene.has("gt/flow")
                                       and scene.has("gt/depth") and scene.has("gt/dynamic_mask"),
-                                      progress=not self.quiet)
+                                      progress=not self.quiet, on_pair=by_object.add)
         if result.get("sceneflow"):
-            result["sceneflow_by_object"] = field_error_by_object(deformation, scene, normalized_times(scene))
+            result["sceneflow_by_object"] = by_object.summary()
         write_motion_outputs(out, deformation, result, self.config)
         terms = " + ".join(name for name, on in (("flow", self.use_flow), ("radar", self.use_radar)) if on)
         print(f"fit ({terms}) in {result['fit_seconds']:.1f} s")

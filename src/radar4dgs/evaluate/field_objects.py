@@ -51,44 +51,61 @@ def field_displacement(field, points: np.ndarray, t_from: float, t_to: float, ch
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
-def field_error_by_object(field, scene, times: np.ndarray) -> dict[str, Any]:
-    """The field's scene-flow error per moving object over every adjacent frame pair.
+class ObjectErrors:
+    """Groups a field's per-point scene-flow errors by moving object of ``scene``'s ground truth: pass
+    :meth:`add` as :func:`radar4dgs.train.fit_motion.evaluate_sceneflow`'s ``on_pair`` (one pass over the
+    frames for both scores), or let :func:`field_error_by_object` feed it; then :meth:`summary`."""
 
-    Returns ``objects``: one entry per object with points, in the scene's order: ``id``, ``class``,
-    ``role``, ``points``, ``frames`` (first and last frame it was scored at), ``epe`` (m, mean over its
-    points), ``epe_p90``, ``motion`` (m, mean true one-frame displacement: the error of a field that
-    leaves it still) and ``worst_frames`` ([{frame, epe}], its frames of largest mean error); and
-    ``unassigned_points``, the moving points in no object's box. Empty without per-object truth (boxes).
-    """
-    # Scenes written before the generator recorded its boxes have no "dims": nothing to assign points to.
-    truth = [obj for obj in moving_ground_truth(scene) if len(obj.get("dims") or ()) == 3]
-    errors: dict[int, list[np.ndarray]] = {}
-    motions: dict[int, list[np.ndarray]] = {}
-    by_frame: dict[int, list[tuple[int, float]]] = {}
-    unassigned = 0
-    for i in range(len(scene) - 1) if truth else ():
+    def __init__(self, scene):
+        # Scenes written before the generator recorded its boxes have no "dims": nothing to assign points to.
+        self.truth = [obj for obj in moving_ground_truth(scene) if len(obj.get("dims") or ()) == 3]
+        self.errors: dict[int, list[np.ndarray]] = {}
+        self.motions: dict[int, list[np.ndarray]] = {}
+        self.by_frame: dict[int, list[tuple[int, float]]] = {}
+        self.unassigned = 0
+
+    def add(self, frame: int, world: np.ndarray, motion: np.ndarray, error: np.ndarray) -> None:
+        """(N, 3) true moving points of ``frame``, (N, 3) their true motion to the next frame, (N,) the field error."""
+        if not self.truth:
+            return
+        owners = box_owners(world, self.truth, frame)
+        self.unassigned += int((owners < 0).sum())
+        for k in np.unique(owners[owners >= 0]):
+            part = owners == k
+            self.errors.setdefault(int(k), []).append(error[part])
+            self.motions.setdefault(int(k), []).append(np.linalg.norm(motion[part], axis=1))
+            self.by_frame.setdefault(int(k), []).append((frame, float(error[part].mean())))
+
+    def summary(self) -> dict[str, Any]:
+        """``objects``: one entry per object with points, in the scene's order: ``id``, ``class``, ``role``,
+        ``points``, ``frames`` (first and last frame it was scored at), ``epe`` (m, mean over its points),
+        ``epe_p90``, ``motion`` (m, mean true one-frame displacement: the error of a field that leaves it
+        still) and ``worst_frames`` ([{frame, epe}], its frames of largest mean error); and
+        ``unassigned_points``, the moving points in no object's box. Empty without per-object truth (boxes)."""
+        objects = []
+        for k in sorted(self.errors):
+            error, frames, truth = np.concatenate(self.errors[k]), self.by_frame[k], self.truth[k]
+            worst = sorted(frames, key=lambda item: -item[1])[:WORST_FRAMES]
+            objects.append({"id": truth.get("id", k), "class": truth.get("class"), "role": truth.get("role"),
+                            "points": int(len(error)), "frames": [frames[0][0], frames[-1][0]],
+                            "epe": float(error.mean()), "epe_p90": float(np.percentile(error, 90)),
+                            "motion": float(np.concatenate(self.motions[k]).mean()),
+                            "worst_frames": [{"frame": f, "epe": e} for f, e in worst]})
+        return {"objects": objects, "unassigned_points": self.unassigned}
+
+
+def field_error_by_object(field, scene, times: np.ndarray) -> dict[str, Any]:
+    """The field's scene-flow error per moving object over every adjacent frame pair
+    (:meth:`ObjectErrors.summary`)."""
+    errors = ObjectErrors(scene)
+    for i in range(len(scene) - 1) if errors.truth else ():
         surface = moving_surface_points(scene, i)
         if surface is None:
             continue
         world, motion = surface[0], surface[1]
-        error = np.linalg.norm(field_displacement(field, world, float(times[i]), float(times[i + 1])) - motion, axis=1)
-        owners = box_owners(world, truth, i)
-        unassigned += int((owners < 0).sum())
-        for k in np.unique(owners[owners >= 0]):
-            part = owners == k
-            errors.setdefault(int(k), []).append(error[part])
-            motions.setdefault(int(k), []).append(np.linalg.norm(motion[part], axis=1))
-            by_frame.setdefault(int(k), []).append((i, float(error[part].mean())))
-    objects = []
-    for k in sorted(errors):
-        error, frames = np.concatenate(errors[k]), by_frame[k]
-        worst = sorted(frames, key=lambda item: -item[1])[:WORST_FRAMES]
-        objects.append({"id": truth[k].get("id", k), "class": truth[k].get("class"), "role": truth[k].get("role"),
-                        "points": int(len(error)), "frames": [frames[0][0], frames[-1][0]],
-                        "epe": float(error.mean()), "epe_p90": float(np.percentile(error, 90)),
-                        "motion": float(np.concatenate(motions[k]).mean()),
-                        "worst_frames": [{"frame": f, "epe": e} for f, e in worst]})
-    return {"objects": objects, "unassigned_points": unassigned}
+        moved = field_displacement(field, world, float(times[i]), float(times[i + 1]))
+        errors.add(i, world, motion, np.linalg.norm(moved - motion, axis=1))
+    return errors.summary()
 
 
 def format_objects(result: dict[str, Any]) -> list[str]:

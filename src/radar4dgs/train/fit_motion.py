@@ -28,7 +28,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -53,6 +53,9 @@ from radar4dgs.train.object_points import (
     prepared_object_points,
 )
 from radar4dgs.train.path_prior import PathSamples, observed_path_samples, path_loss
+
+# (frame i, (N, 3) true moving points of i, (N, 3) their true motion to i + 1, (N,) the field's error there)
+PairCallback = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
 
 # --------------------------------------------------------------------------------------------
 # Data
@@ -351,8 +354,14 @@ def _fit_field(flow: FlowSamples | None, radar: RadarSamples | None, velocity: V
 # Evaluation
 
 
-def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, chunk: int = 65536) -> dict:
+def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, chunk: int = 65536,
+                       on_pair: PairCallback | None = None) -> dict:
     """End-point error of the field's scene flow on every gt-dynamic pixel of every adjacent pair.
+
+    ``on_pair(i, points, motion, error)``, when given, sees each pair's (N, 3) true moving surface points
+    of frame ``i``, their (N, 3) true motion to ``i + 1`` and the field's (N,) error there, so a caller can
+    group the errors its own way (:class:`radar4dgs.evaluate.field_objects.ObjectErrors`) without a second
+    pass over the ground truth and the field.
 
     Returns ``epe`` (m, mean over pixels of all pairs), ``epe_by_image_motion`` (the same per bin of
     the pixels' gt image motion, ``radar4dgs.io.image_motion.image_motion_edges``),
@@ -380,6 +389,8 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
                 roundtrip = max(roundtrip, float((back - canonical).abs().max()))
                 predicted.append((moved - xt).double().cpu().numpy())
         error = np.linalg.norm(np.concatenate(predicted) - motion, axis=1)
+        if on_pair is not None:
+            on_pair(i, x, motion, error)
         errors.append(error)
         zero.append(np.linalg.norm(motion, axis=1))
         held_out.append(np.full(len(error), i in test or (i + 1) in test))
@@ -412,8 +423,10 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
 
 def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None, use_flow: bool = True,
             use_radar: bool = True, recompute_flow: bool = False, evaluate: bool = True,
-            progress: bool = False, use_velocity: bool | None = None) -> tuple[DeformationField, dict]:
-    """Fit the field to a scene's prepared data and (with gt/) evaluate it.
+            progress: bool = False, use_velocity: bool | None = None,
+            on_pair: PairCallback | None = None) -> tuple[DeformationField, dict]:
+    """Fit the field to a scene's prepared data and (with gt/) evaluate it (``on_pair``: as
+    :func:`evaluate_sceneflow`'s).
 
     ``<prepared>/flow`` is computed with ``config.flow`` when missing (or ``recompute_flow``) and
     ``use_flow`` is on. ``use_velocity`` (None: ``config.fit.velocity``) adds ``L_vel``. Returns the
@@ -453,7 +466,7 @@ def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None,
     if evaluate:
         eval_started = time.perf_counter()
         with torch_threads(config.fit.threads):
-            result["sceneflow"] = evaluate_sceneflow(deformation, scene, times)
+            result["sceneflow"] = evaluate_sceneflow(deformation, scene, times, on_pair=on_pair)
         result["eval_seconds"] = time.perf_counter() - eval_started
     return deformation, result
 
