@@ -217,15 +217,19 @@ def _run_stages(scene: Scene, prepared: Path, config: PrepareConfig, force: bool
     status: dict[str, str] = {}
     # Stages read their predecessors' outputs, so once one stage reruns, every later one does too.
     upstream_changed = False
+    checked: set[str] = set()
     for position, stage in enumerate(STAGES):
         if only and stage.name not in only:
             continue
         # A stage run alone reads its predecessors' outputs: they must be this scene's and config's, and made
         # from what the stages before them hold now (`--only radar flow` with a new radar config leaves the
-        # masks between them stale). For the first stage asked for, this is checked before anything runs.
+        # masks between them stale). For the first stage asked for, this is checked before anything runs; a
+        # stage left out does not change during the run, so once is enough.
         for earlier in STAGES[:position] if only else ():
-            stale = None if earlier.name in only else stage_difference(
-                prepared / earlier.name, getattr(config, earlier.name), fingerprint)
+            if earlier.name in only or earlier.name in checked:
+                continue
+            checked.add(earlier.name)
+            stale = stage_difference(prepared / earlier.name, getattr(config, earlier.name), fingerprint)
             if stale:
                 raise ValueError(f"{stale}; the later stages read it: add {earlier.name} to --only, or run "
                                  f"without --only")
