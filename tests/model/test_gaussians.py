@@ -17,6 +17,7 @@ from radar4dgs.model.gaussians import (
     GaussianSet,
     backproject_frame,
     backproject_frames,
+    dynamic_cap_note,
     initialize_gaussians,
     knn_log_scales,
     to_canonical,
@@ -122,6 +123,26 @@ def test_subsampling_is_deterministic_and_capped(prepared_scene):
     c = backproject_frames(scene, prepared, GaussianInitConfig(pixel_stride=1, points_per_frame=1500,
                                                                max_static=5000, max_dynamic=40, seed=8))
     assert not np.array_equal(a["points"], c["points"])
+
+
+def test_the_log_says_when_the_per_frame_cap_holds_the_dynamic_set_below_its_cap(prepared_scene):
+    scene, prepared = prepared_scene
+    frames = scene.train_indices
+    masks = {i: _mask(prepared / "masks" / f"{scene.frames[i].name}.png") for i in frames}
+    on_grid = sum(int(masks[i].sum()) for i in frames)
+    assert on_grid > 300
+
+    def note(points_per_frame, max_dynamic):
+        config = GaussianInitConfig(pixel_stride=1, points_per_frame=points_per_frame, max_static=10**6,
+                                    max_dynamic=max_dynamic)
+        points = backproject_frames(scene, prepared, config)
+        return points, dynamic_cap_note(points, masks, frames, config)
+
+    # 300 points a frame out of thousands of candidates keep a fraction of the masks' pixels: said, with the numbers.
+    points, said = note(300, 10**6)
+    assert f"kept {int(points['dynamic'].sum())} of the masks' {on_grid} pixels" in said
+    # Every candidate kept, or the cap itself reached: nothing to say.
+    assert note(0, 10**6)[1] == "" and note(300, int(points["dynamic"].sum()))[1] == ""
 
 
 def _brute_force_log_scales(queries, points, k, lo, hi):

@@ -145,6 +145,24 @@ def backproject_frames(scene, prepared_dir: Path | str, config: GaussianInitConf
     return {k: v[keep] for k, v in out.items()}
 
 
+def dynamic_cap_note(points: Mapping[str, np.ndarray], masks: Mapping[int, np.ndarray], frames: Sequence[int],
+                     config: GaussianInitConfig) -> str:
+    """A note for the log when ``points`` (from :func:`backproject_frames`) hold fewer dynamic points than
+    ``max_dynamic`` allows because ``points_per_frame`` subsampled each frame's candidates (static ones included),
+    while the (H, W) ``masks`` of ``frames`` hold more; else "". At 640x360 the small preset's 15 000 a frame keep
+    about 48 000 of a strict hard scene's 166 000 moving pixels, so a larger max_dynamic alone changes little."""
+    kept = int(np.asarray(points["dynamic"]).sum())
+    if config.source != "depth" or config.points_per_frame <= 0 or kept >= config.max_dynamic:
+        return ""
+    step = config.dynamic_pixel_stride
+    on_grid = sum(int(masks[i][::step, ::step].sum()) for i in frames)
+    # A tenth of slack: sky and pixels without depth inside the masks are never candidates.
+    if kept >= 0.9 * min(on_grid, config.max_dynamic):
+        return ""
+    return (f"; max_dynamic {config.max_dynamic} not reached: init.points_per_frame {config.points_per_frame} kept "
+            f"{kept} of the masks' {on_grid} pixels, raise it to keep more")
+
+
 # --------------------------------------------------------------------------------------------
 # Gaussian components
 

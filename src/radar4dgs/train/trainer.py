@@ -35,7 +35,7 @@ from radar4dgs.io.scene import normalized_times, read_scene
 from radar4dgs.metrics.image import psnr
 from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
-from radar4dgs.model.gaussians import GaussianSet, backproject_frames
+from radar4dgs.model.gaussians import GaussianSet, backproject_frames, dynamic_cap_note
 from radar4dgs.model.pose_refine import PoseCorrections, corrected_directions, refinement_switches, trajectory_target
 from radar4dgs.model.run import (
     CHECKPOINT_DIR,
@@ -248,7 +248,8 @@ class Trainer:
         state.model.dynamic_in_front = self.config.dynamic_in_front
         state.optimizers["dynamic"] = make_optimizer(dynamic, self.config, self.extent, "dynamic.")
         state.stats["dynamic"] = GradientStats(len(dynamic), self.device)
-        self.log(f"stage 2: {len(dynamic)} dynamic Gaussians ({self.config.dynamic_positions} means)")
+        note = dynamic_cap_note(points, self.masks, self.train_indices, self.config.init)
+        self.log(f"stage 2: {len(dynamic)} dynamic Gaussians ({self.config.dynamic_positions} means){note}")
 
     def _start_rigid_actors(self, state: RunState) -> None:
         """The dynamic Gaussians grouped into actors, each actor's moved by a rigid motion of its
