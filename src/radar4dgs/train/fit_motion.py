@@ -54,7 +54,7 @@ from radar4dgs.train.object_points import (
 )
 from radar4dgs.train.path_prior import PathSamples, observed_path_samples, path_loss
 
-# (frame i, (N, 3) true moving points of i, (N, 3) their true motion to i + 1, (N,) the field's error there)
+# evaluate_sceneflow's on_pair(i, (N, 3) true moving points of frame i, (N, 3) their motion to i + 1, (N,) errors)
 PairCallback = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
 
 # --------------------------------------------------------------------------------------------
@@ -251,9 +251,8 @@ def _torch_dtype(name: str) -> torch.dtype:
     return {"float32": torch.float32, "float64": torch.float64}[name]
 
 
-def fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig,
-              fit: FitConfig, progress: bool = False,
-              velocity: VelocitySamples | None = None,
+def fit_field(flow: FlowSamples | None, radar: RadarSamples | None, field_config: FieldConfig, fit: FitConfig,
+              progress: bool = False, velocity: VelocitySamples | None = None,
               path: PathSamples | None = None) -> tuple[DeformationField, list[dict]]:
     """Fit a fresh field with Adam on ``L_flow + radar_weight * L_rad + velocity_weight * L_vel``, plus
     ``acceleration_weight * L_acc`` on ``path`` (:mod:`radar4dgs.train.path_prior`) when given.
@@ -358,17 +357,14 @@ def evaluate_sceneflow(deformation: DeformationField, scene, times: np.ndarray, 
                        on_pair: PairCallback | None = None) -> dict:
     """End-point error of the field's scene flow on every gt-dynamic pixel of every adjacent pair.
 
-    ``on_pair(i, points, motion, error)``, when given, sees each pair's (N, 3) true moving surface points
-    of frame ``i``, their (N, 3) true motion to ``i + 1`` and the field's (N,) error there, so a caller can
-    group the errors its own way (:class:`radar4dgs.evaluate.field_objects.ObjectErrors`) without a second
-    pass over the ground truth and the field.
+    ``on_pair`` (:data:`PairCallback`), when given, sees each pair's points, motion and errors, so a caller can
+    group them its own way (:class:`radar4dgs.evaluate.field_objects.ObjectErrors`) without a second pass.
 
-    Returns ``epe`` (m, mean over pixels of all pairs), ``epe_by_image_motion`` (the same per bin of
-    the pixels' gt image motion, ``radar4dgs.io.image_motion.image_motion_edges``),
-    ``epe_train_pairs`` (both frames are
-    training frames), ``epe_held_out_pairs`` (a test frame involved), ``zero_motion_epe`` (mean
-    |gt flow|, the error of a field that does not move), ``roundtrip_max`` (m, max
-    |D^-1(D(x)) - x| on the evaluated points), ``points`` and ``pairs``.
+    Returns ``epe`` (m, mean over pixels of all pairs), ``epe_by_image_motion`` (the same per bin of the pixels'
+    gt image motion, ``radar4dgs.io.image_motion.image_motion_edges``), ``epe_train_pairs`` (both frames are
+    training frames), ``epe_held_out_pairs`` (a test frame involved), ``zero_motion_epe`` (mean |gt flow|, the
+    error of a field that does not move), ``roundtrip_max`` (m, max |D^-1(D(x)) - x| on the evaluated points),
+    ``points`` and ``pairs``.
     """
     parameter = next(deformation.parameters())
     device, dtype = parameter.device, parameter.dtype
@@ -425,13 +421,11 @@ def run_fit(scene, prepared_dir: str | Path, config: MotionConfig | None = None,
             use_radar: bool = True, recompute_flow: bool = False, evaluate: bool = True,
             progress: bool = False, use_velocity: bool | None = None,
             on_pair: PairCallback | None = None) -> tuple[DeformationField, dict]:
-    """Fit the field to a scene's prepared data and (with gt/) evaluate it (``on_pair``: as
-    :func:`evaluate_sceneflow`'s).
+    """Fit the field to a scene's prepared data and (with gt/) evaluate it (``on_pair``: :func:`evaluate_sceneflow`'s).
 
-    ``<prepared>/flow`` is computed with ``config.flow`` when missing (or ``recompute_flow``) and
-    ``use_flow`` is on. ``use_velocity`` (None: ``config.fit.velocity``) adds ``L_vel``. Returns the
-    field and a JSON-ready result dict (config, data counts, loss history, timings, and the
-    :func:`evaluate_sceneflow` metrics under ``"sceneflow"``).
+    ``<prepared>/flow`` is computed with ``config.flow`` when missing (or ``recompute_flow``) and ``use_flow`` is on.
+    ``use_velocity`` (None: ``config.fit.velocity``) adds ``L_vel``. Returns the field and a JSON-ready result dict
+    (config, data counts, loss history, timings, and the :func:`evaluate_sceneflow` metrics under ``"sceneflow"``).
     """
     config = config or MotionConfig()
     prepared = Path(prepared_dir)
