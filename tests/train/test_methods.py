@@ -167,3 +167,16 @@ def test_dynamic_gaussians_densify_only_in_their_own_window(tiny_trained_run, tm
     assert bool(rounds) == densified
     assert all(6 <= h["step"] < 12 for h in rounds)  # stage 2 starts at 6 of 12
     assert any(h.get("densify") == "static" for h in state.history)
+
+
+@pytest.mark.parametrize("dynamic_grad_threshold, dynamic_grows", [(0.0, False), (1e-9, True)])
+def test_dynamic_gaussians_grow_at_their_own_gradient_threshold(tiny_trained_run, tmp_path, one_torch_thread,
+                                                                dynamic_grad_threshold, dynamic_grows):
+    scene = tiny_trained_run / "scene"
+    config = small_config("ours", densify={"every": 2, "start": 0.0, "stop": 1.0, "grad_threshold": 1e9,
+                                           "max_gaussians": 3500, "dynamic_grad_threshold": dynamic_grad_threshold})
+    state = train_run(scene, scene / "prepared", tmp_path / "run", config, progress=False)
+    grown = {name: sum(h["cloned"] + h["split"] for h in state.history if h.get("densify") == name)
+             for name in ("static", "dynamic")}
+    assert grown["static"] == 0  # no gradient passes 1e9
+    assert (grown["dynamic"] > 0) == dynamic_grows

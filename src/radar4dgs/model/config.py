@@ -271,6 +271,9 @@ class DensifyConfig:
     dynamic_stop: float = 0.0
     # Grow Gaussians whose mean screen-space position gradient (NDC units, as 3DGS) exceeds this.
     grad_threshold: float = 2e-4
+    # The dynamic set's threshold (0 = grad_threshold): a mover's Gaussians are seen in a few frames of their life
+    # span each, so their averaged gradients run lower than the static set's.
+    dynamic_grad_threshold: float = 0.0
     # Clone when the largest scale is below this fraction of the scene extent, else split in two.
     clone_max_scale: float = 0.01
     # Prune Gaussians with opacity below this, or larger than prune_scale x the scene extent.

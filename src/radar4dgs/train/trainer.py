@@ -476,8 +476,10 @@ class Trainer:
             if name not in trainable or name not in state.stats or not (d.start * total <= step < stop * total):
                 continue
             gaussians = getattr(state.model, name)
-            counts = densify_and_prune(gaussians, state.optimizers[name], state.stats[name], self.extent, d, generator,
-                                       prune_large=d.reset_every > 0 and step >= d.reset_every)
+            rules = dataclasses.replace(d, grad_threshold=d.dynamic_grad_threshold) \
+                if name == "dynamic" and d.dynamic_grad_threshold > 0 else d
+            counts = densify_and_prune(gaussians, state.optimizers[name], state.stats[name], self.extent, rules,
+                                       generator, prune_large=d.reset_every > 0 and step >= d.reset_every)
             if d.reset_every > 0 and (step + 1) % d.reset_every == 0:
                 reset_opacities(gaussians, state.optimizers[name], d.reset_value)
             state.history.append({"step": step, "stage": stage, "densify": name, **counts,
