@@ -272,7 +272,8 @@ class DensifyConfig:
     # Grow Gaussians whose mean screen-space position gradient (NDC units, as 3DGS) exceeds this.
     grad_threshold: float = 2e-4
     # The dynamic set's threshold (0 = grad_threshold): a mover's Gaussians are seen in a few frames of their life
-    # span each, so their averaged gradients run lower than the static set's.
+    # span each, so their averaged gradients run lower than the static set's. 5e-5 with dynamic_stop 0.8 at 640 px:
+    # PSNR* +0.19 dB over nine grid runs of the strict tuning seeds, short of a default's +0.3.
     dynamic_grad_threshold: float = 0.0
     # Clone when the largest scale is below this fraction of the scene extent, else split in two.
     clone_max_scale: float = 0.01
