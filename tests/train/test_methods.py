@@ -180,3 +180,8 @@ def test_dynamic_gaussians_grow_at_their_own_gradient_threshold(tiny_trained_run
              for name in ("static", "dynamic")}
     assert grown["static"] == 0  # no gradient passes 1e9
     assert (grown["dynamic"] > 0) == dynamic_grows
+
+
+def test_a_negative_densification_threshold_is_refused():
+    with pytest.raises(ValueError, match="dynamic_grad_threshold must be >= 0, got 0.0002, -1e-05"):
+        preset(TrainConfig, "tiny", densify={"dynamic_grad_threshold": -1e-5})

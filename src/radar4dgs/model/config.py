@@ -286,6 +286,11 @@ class DensifyConfig:
     # Never let a set grow beyond this many Gaussians (the CPU rasterizer's time grows with it).
     max_gaussians: int = 200_000
 
+    def __post_init__(self) -> None:
+        if self.grad_threshold < 0 or self.dynamic_grad_threshold < 0:
+            raise ValueError(f"grad_threshold and dynamic_grad_threshold must be >= 0, got {self.grad_threshold}, "
+                             f"{self.dynamic_grad_threshold}")
+
 
 @dataclass
 class TrainConfig:
