@@ -185,3 +185,13 @@ def test_dynamic_gaussians_grow_at_their_own_gradient_threshold(tiny_trained_run
 def test_a_negative_densification_threshold_is_refused():
     with pytest.raises(ValueError, match="dynamic_grad_threshold must be >= 0, got 0.0002, -1e-05"):
         preset(TrainConfig, "tiny", densify={"dynamic_grad_threshold": -1e-5})
+
+
+def test_dynamic_gaussians_split_below_their_own_clone_line(tiny_trained_run, tmp_path, one_torch_thread):
+    scene = tiny_trained_run / "scene"
+    config = small_config("ours", densify={"every": 2, "start": 0.0, "stop": 1.0, "grad_threshold": 1e9,
+                                           "max_gaussians": 3500, "dynamic_grad_threshold": 1e-9,
+                                           "dynamic_clone_max_scale": 1e-9})
+    state = train_run(scene, scene / "prepared", tmp_path / "run", config, progress=False)
+    rounds = [h for h in state.history if h.get("densify") == "dynamic"]
+    assert sum(h["split"] for h in rounds) > 0 and sum(h["cloned"] for h in rounds) == 0

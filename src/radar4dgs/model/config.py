@@ -278,6 +278,9 @@ class DensifyConfig:
     dynamic_grad_threshold: float = 0.0
     # Clone when the largest scale is below this fraction of the scene extent, else split in two.
     clone_max_scale: float = 0.01
+    # The dynamic set's line (0 = clone_max_scale): a mover's Gaussians (~0.1 m) lie below 1 % of a street's extent,
+    # so they are only ever cloned in place, never split finer.
+    dynamic_clone_max_scale: float = 0.0
     # Prune Gaussians with opacity below this, or larger than prune_scale x the scene extent.
     prune_opacity: float = 0.005
     prune_scale: float = 0.1
@@ -291,6 +294,8 @@ class DensifyConfig:
         if self.grad_threshold < 0 or self.dynamic_grad_threshold < 0:
             raise ValueError(f"grad_threshold and dynamic_grad_threshold must be >= 0, got {self.grad_threshold}, "
                              f"{self.dynamic_grad_threshold}")
+        if self.dynamic_clone_max_scale < 0:
+            raise ValueError(f"dynamic_clone_max_scale must be >= 0, got {self.dynamic_clone_max_scale}")
 
 
 @dataclass

@@ -476,8 +476,9 @@ class Trainer:
             if name not in trainable or name not in state.stats or not (d.start * total <= step < stop * total):
                 continue
             gaussians = getattr(state.model, name)
-            rules = dataclasses.replace(d, grad_threshold=d.dynamic_grad_threshold) \
-                if name == "dynamic" and d.dynamic_grad_threshold > 0 else d
+            rules = d if name != "dynamic" else dataclasses.replace(
+                d, grad_threshold=d.dynamic_grad_threshold or d.grad_threshold,
+                clone_max_scale=d.dynamic_clone_max_scale or d.clone_max_scale)
             counts = densify_and_prune(gaussians, state.optimizers[name], state.stats[name], self.extent, rules,
                                        generator, prune_large=d.reset_every > 0 and step >= d.reset_every)
             if d.reset_every > 0 and (step + 1) % d.reset_every == 0:
