@@ -185,6 +185,8 @@ def test_dynamic_gaussians_grow_at_their_own_gradient_threshold(tiny_trained_run
 def test_a_negative_densification_threshold_is_refused():
     with pytest.raises(ValueError, match="dynamic_grad_threshold must be >= 0, got 0.0002, -1e-05"):
         preset(TrainConfig, "tiny", densify={"dynamic_grad_threshold": -1e-5})
+    with pytest.raises(ValueError, match="dynamic_clone_max_scale must be >= 0, got -0.001"):
+        preset(TrainConfig, "tiny", densify={"dynamic_clone_max_scale": -0.001})
 
 
 def test_dynamic_gaussians_split_below_their_own_clone_line(tiny_trained_run, tmp_path, one_torch_thread):
