@@ -10,7 +10,7 @@ import torch
 
 from radar4dgs.config import preset, to_dict
 from radar4dgs.io.scene import read_scene
-from radar4dgs.model.config import TrainConfig
+from radar4dgs.model.config import DensifyConfig, TrainConfig
 from radar4dgs.model.gaussians import GaussianInitConfig, backproject_frames
 from radar4dgs.model.scene_model import load_model
 from radar4dgs.train.data import BASELINE_MASK_DIR, dynamic_masks
@@ -187,6 +187,16 @@ def test_a_negative_densification_threshold_is_refused():
         preset(TrainConfig, "tiny", densify={"dynamic_grad_threshold": -1e-5})
     with pytest.raises(ValueError, match="dynamic_clone_max_scale must be >= 0, got -0.001"):
         preset(TrainConfig, "tiny", densify={"dynamic_clone_max_scale": -0.001})
+
+
+def test_the_dynamic_set_takes_its_own_densification_rules_where_set():
+    d = DensifyConfig(stop=0.5, dynamic_stop=0.8, grad_threshold=2e-4, dynamic_grad_threshold=5e-5,
+                      clone_max_scale=0.01, dynamic_clone_max_scale=0.001)
+    assert d.for_set("static") == d
+    dynamic = d.for_set("dynamic")
+    assert (dynamic.stop, dynamic.grad_threshold, dynamic.clone_max_scale) == (0.8, 5e-5, 0.001)
+    unset = DensifyConfig(stop=0.5).for_set("dynamic")  # 0 keeps the static set's rule, a later stop wins
+    assert (unset.stop, unset.grad_threshold, unset.clone_max_scale) == (0.5, 2e-4, 0.01)
 
 
 def test_dynamic_gaussians_split_below_their_own_clone_line(tiny_trained_run, tmp_path, one_torch_thread):

@@ -297,6 +297,15 @@ class DensifyConfig:
         if self.dynamic_clone_max_scale < 0:
             raise ValueError(f"dynamic_clone_max_scale must be >= 0, got {self.dynamic_clone_max_scale}")
 
+    def for_set(self, name: str) -> DensifyConfig:
+        """The rules for Gaussian set ``name`` ("static" or "dynamic"): the dynamic set's own stop, gradient
+        threshold and clone line where they are set."""
+        if name != "dynamic":
+            return self
+        return dataclasses.replace(self, stop=max(self.stop, self.dynamic_stop),
+                                   grad_threshold=self.dynamic_grad_threshold or self.grad_threshold,
+                                   clone_max_scale=self.dynamic_clone_max_scale or self.clone_max_scale)
+
 
 @dataclass
 class TrainConfig:

@@ -472,13 +472,11 @@ class Trainer:
         if d.every <= 0 or (step + 1) % d.every != 0:
             return
         for name in ("static", "dynamic"):
-            stop = max(d.stop, d.dynamic_stop) if name == "dynamic" else d.stop
-            if name not in trainable or name not in state.stats or not (d.start * total <= step < stop * total):
+            rules = d.for_set(name)
+            in_window = rules.start * total <= step < rules.stop * total
+            if name not in trainable or name not in state.stats or not in_window:
                 continue
             gaussians = getattr(state.model, name)
-            rules = d if name != "dynamic" else dataclasses.replace(
-                d, grad_threshold=d.dynamic_grad_threshold or d.grad_threshold,
-                clone_max_scale=d.dynamic_clone_max_scale or d.clone_max_scale)
             counts = densify_and_prune(gaussians, state.optimizers[name], state.stats[name], self.extent, rules,
                                        generator, prune_large=d.reset_every > 0 and step >= d.reset_every)
             if d.reset_every > 0 and (step + 1) % d.reset_every == 0:
