@@ -6,9 +6,13 @@ For each frame of a split (synthetic scenes, with ``gt/dynamic_mask``), the true
 the squared error, and the PSNR of each part. A band that holds most of the error with a third of the pixels says the
 movers are drawn in the right place but with soft or shifted outlines; an interior that holds it says their surface is
 wrong or missing. ``--figure`` draws, for the run's frames whose band holds the largest share, the truth with the mask
-outline in red, the render and the error (x3), cropped around the largest mover.
+outline in red, the render and the error (x3), cropped around the largest mover. Each frame also gets the largest
+mover's offset (:func:`radar4dgs.evaluate.mover_offset.mover_offset`: the render's integer shift, up to ``--reach``
+pixels, that best matches the truth there, and that mover's PSNR before and after it): a mover drawn off its place
+gains from the shift, a soft one does not.
 
-    python benchmarks/silhouettes.py RUN [RUN ...] [--split nvs|recon] [--band 3] [--figure PNG] [--out JSON]
+    python benchmarks/silhouettes.py RUN [RUN ...] [--split nvs|recon] [--band 3] [--reach 10] [--figure PNG]
+                                     [--out JSON]
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import imageio.v3 as iio
 import numpy as np
 from scipy import ndimage
 
+from radar4dgs.evaluate.mover_offset import mover_offset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import save_png
 from radar4dgs.io.scene import read_mask_png, read_scene
@@ -66,8 +71,9 @@ def crop_panel(truth: np.ndarray, render: np.ndarray, mask: np.ndarray, margin: 
     return panel.repeat(zoom, axis=0).repeat(zoom, axis=1)
 
 
-def run_rows(run_dir: Path, split: str, width: int) -> tuple[list[dict], list[np.ndarray]]:
-    """Per frame of ``split`` with moving pixels: :func:`frame_row` plus ``frame``; and the figure's panels."""
+def run_rows(run_dir: Path, split: str, width: int, reach: int) -> tuple[list[dict], list[np.ndarray]]:
+    """Per frame of ``split`` with moving pixels: :func:`frame_row` plus ``frame`` and the largest mover's
+    ``offset`` (:func:`mover_offset`); and the figure's panels."""
     scene = read_scene(json.loads((run_dir / "run.json").read_text())["scene"])
     shape = (scene.camera.height, scene.camera.width)
     rows, panels = [], []
@@ -78,7 +84,8 @@ def run_rows(run_dir: Path, split: str, width: int) -> tuple[list[dict], list[np
             continue
         truth = scene.load_image(entry["index"]).astype(np.float64) / 255.0
         render = iio.imread(run_dir / "renders" / split / f"{name}.png")[..., :3].astype(np.float64) / 255.0
-        rows.append({"frame": name, **frame_row(truth, render, mask, width)})
+        rows.append({"frame": name, **frame_row(truth, render, mask, width),
+                     "offset": mover_offset(truth, render, mask, reach)})
         panels.append((rows[-1]["band_error_share"] or 0.0, crop_panel(truth, render, mask)))
     chosen = [panel for _, panel in sorted(panels, key=lambda item: -item[0])[:FIGURE_FRAMES]]
     return rows, chosen
@@ -89,8 +96,14 @@ def summary(rows: list[dict]) -> dict:
     def mean(key):
         values = [r[key] for r in rows if r[key] is not None]
         return float(np.mean(values)) if values else None
+    offsets = [r["offset"] for r in rows if r.get("offset")]
     return {"frames": len(rows), **{key: mean(key) for key in
-                                    ("psnr_dyn", "psnr_band", "psnr_interior", "band_pixel_share", "band_error_share")}}
+                                    ("psnr_dyn", "psnr_band", "psnr_interior", "band_pixel_share", "band_error_share")},
+            "largest_mover": {
+                "offset_px_median": float(np.median([o["offset_px"] for o in offsets])) if offsets else None,
+                "frames_offset_2px_or_more": sum(o["offset_px"] >= 2 for o in offsets),
+                "psnr": float(np.mean([o["psnr"] for o in offsets])) if offsets else None,
+                "psnr_realigned": float(np.mean([o["psnr_realigned"] for o in offsets])) if offsets else None}}
 
 
 def main() -> None:
@@ -98,17 +111,23 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--split", choices=("nvs", "recon"), default="nvs")
     parser.add_argument("--band", type=int, default=3, help="width in pixels of the band inside the outline")
+    parser.add_argument("--reach", type=int, default=10, help="largest shift tried for the largest mover, pixels")
     parser.add_argument("--figure", type=Path)
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     result, figure = {"split": args.split, "band_px": args.band, "runs": {}}, []
     for run in args.runs:
-        rows, panels = run_rows(run, args.split, args.band)
+        rows, panels = run_rows(run, args.split, args.band, args.reach)
         result["runs"][str(run.resolve())] = {"summary": summary(rows), "frames": rows}
         s = summary(rows)
         print(f"{run}: {s['frames']} frames, PSNR* {s['psnr_dyn']:.2f} dB: band {s['psnr_band']:.2f} dB "
               f"({100 * s['band_pixel_share']:.0f} % of the pixels, {100 * s['band_error_share']:.0f} % of the "
               f"squared error), interior {s['psnr_interior']:.2f} dB")
+        mover = s["largest_mover"]
+        if mover["psnr"] is not None:
+            print(f"  largest mover: offset {mover['offset_px_median']:.1f} px (median), >= 2 px in "
+                  f"{mover['frames_offset_2px_or_more']} of {s['frames']} frames; {mover['psnr']:.2f} dB, "
+                  f"{mover['psnr_realigned']:.2f} realigned")
         figure += panels
     if args.figure and figure:
         width = max(panel.shape[1] for panel in figure)
