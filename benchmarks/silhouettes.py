@@ -25,7 +25,7 @@ import imageio.v3 as iio
 import numpy as np
 from scipy import ndimage
 
-from radar4dgs.evaluate.mover_offset import mover_offset
+from radar4dgs.evaluate.mover_offset import largest_mover, mover_offset
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.preview import save_png
 from radar4dgs.io.scene import read_mask_png, read_scene
@@ -58,9 +58,7 @@ def frame_row(truth: np.ndarray, render: np.ndarray, mask: np.ndarray, width: in
 
 def crop_panel(truth: np.ndarray, render: np.ndarray, mask: np.ndarray, margin: int = 8) -> np.ndarray:
     """Truth with the mask outline in red | render | error x3, cropped around the largest connected mover."""
-    labels, count = ndimage.label(mask)
-    largest = 1 + int(np.argmax(ndimage.sum(mask, labels, range(1, count + 1))))
-    rows, cols = np.nonzero(labels == largest)
+    rows, cols = np.nonzero(largest_mover(mask))
     top, left = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
     window = np.s_[top:rows.max() + margin, left:cols.max() + margin]
     outlined = truth.copy()
