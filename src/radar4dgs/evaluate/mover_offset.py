@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from radar4dgs.metrics.image import mse_to_psnr
+
 
 def largest_mover(mask: np.ndarray) -> np.ndarray:
     """(H, W) bool: the largest 8-connected component of the (H, W) bool ``mask`` (empty for an empty mask)."""
@@ -50,9 +52,5 @@ def mover_offset(truth: np.ndarray, render: np.ndarray, mask: np.ndarray, reach:
     count = 3.0 * float(weight.sum())
     dy, dx = int(best_y) - reach, int(best_x) - reach
     return {"dy": dy, "dx": dx, "offset_px": float(np.hypot(dy, dx)), "pixels": int(mover.sum()),
-            "psnr": _psnr(float(costs[reach, reach]) / count),
-            "psnr_realigned": _psnr(float(costs[best_y, best_x]) / count)}
-
-
-def _psnr(mse: float) -> float:
-    return float(-10.0 * np.log10(max(mse, 1e-12)))
+            "psnr": mse_to_psnr(float(costs[reach, reach]) / count),
+            "psnr_realigned": mse_to_psnr(float(costs[best_y, best_x]) / count)}

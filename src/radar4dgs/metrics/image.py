@@ -77,7 +77,8 @@ def _check_pair(pred: Tensor, gt: Tensor, name: str) -> None:
         raise TypeError(f"{name}: expected float images in [0, 1], got {pred.dtype} and {gt.dtype}")
 
 
-def _mse_to_psnr(mse: float) -> float:
+def mse_to_psnr(mse: float) -> float:
+    """PSNR in dB of images in [0, 1] from their mean squared error, at most 100 dB (module doc)."""
     return float(-10.0 * math.log10(max(mse, MIN_MSE)))
 
 
@@ -98,7 +99,7 @@ def psnr(pred: Tensor, gt: Tensor, mask: Optional[Tensor] = None) -> Optional[fl
         diff = diff[mask.to(diff.device)]  # (n, 3)
         if diff.numel() == 0:
             return None
-    return _mse_to_psnr(float(diff.square().mean()))
+    return mse_to_psnr(float(diff.square().mean()))
 
 
 def ssim(pred: Tensor, gt: Tensor) -> float:
