@@ -116,8 +116,8 @@ def main() -> None:
     result, figure = {"split": args.split, "band_px": args.band, "runs": {}}, []
     for run in args.runs:
         rows, panels = run_rows(run, args.split, args.band, args.reach)
-        result["runs"][str(run.resolve())] = {"summary": summary(rows), "frames": rows}
         s = summary(rows)
+        result["runs"][str(run.resolve())] = {"summary": s, "frames": rows}
         print(f"{run}: {s['frames']} frames, PSNR* {s['psnr_dyn']:.2f} dB: band {s['psnr_band']:.2f} dB "
               f"({100 * s['band_pixel_share']:.0f} % of the pixels, {100 * s['band_error_share']:.0f} % of the "
               f"squared error), interior {s['psnr_interior']:.2f} dB")
