@@ -13,6 +13,8 @@ from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.train.optimizers import adam
 from radar4dgs.train.rigid_actors import (
     actor_image_motion,
+    born_span,
+    extrapolate_ends,
     fit_rigid_track,
     procrustes_yaw,
     rigid_actor_motion,
@@ -58,6 +60,62 @@ def test_a_rigid_track_is_recovered_from_copies_that_live_around_their_own_key(s
         moved = turn(canonical - pivot, yaw[k]) + pivot + shift[k]
         np.testing.assert_allclose(moved, np.concatenate([truth[:, k]] * keys), atol=1e-7)
 
+
+def test_the_born_span_ignores_a_few_stray_copies():
+    # Copies peaking at keys 0..6: masses 0.5 (stray), 0, 10, 20, 30, 20, 1 (below a tenth of 30).
+    peaks = [0.5, 0.0, 10.0, 20.0, 30.0, 20.0, 1.0]
+    opacities = np.zeros((7, 7))
+    opacities[np.arange(7), np.arange(7)] = peaks
+    opacities[1] = 0.0  # a copy that never renders peaks at key 0 by argmax, with no mass
+    assert born_span(opacities) == (2, 5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 1000), first=st.integers(0, 3), length=st.integers(1, 4))
+def test_the_ends_go_on_at_the_velocity_of_the_first_and_last_born_keys(seed, first, length):
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(rng.uniform(0.5, 2.0, 10))
+    yaw, shift = rng.uniform(-1, 1, 10), rng.uniform(-9, 9, (10, 3))
+    last = min(first + length, 9)
+    new_yaw, new_shift = extrapolate_ends(yaw, shift, times, first, last)
+    inside = slice(first, last + 1)
+    np.testing.assert_array_equal(new_shift[inside], shift[inside])
+    np.testing.assert_array_equal(new_yaw[inside], yaw[inside])
+    head = (shift[first + 1] - shift[first]) / (times[first + 1] - times[first])
+    tail = (shift[last] - shift[last - 1]) / (times[last] - times[last - 1])
+    for k in range(first):
+        np.testing.assert_allclose(new_shift[k], shift[first] + head * (times[k] - times[first]), atol=1e-9)
+        assert new_yaw[k] == yaw[first]
+    for k in range(last + 1, 10):
+        np.testing.assert_allclose(new_shift[k], shift[last] + tail * (times[k] - times[last]), atol=1e-9)
+        assert new_yaw[k] == yaw[last]
+    # One born key: no velocity to go on with, nothing changes.
+    same_yaw, same_shift = extrapolate_ends(yaw, shift, times, 4, 4)
+    assert np.array_equal(same_yaw, yaw) and np.array_equal(same_shift, shift)
+
+
+def test_a_car_entering_late_keeps_its_speed_before_it_is_seen():
+    """A body crossing at 3 m per key, born at keys 3-6 only; before key 3 the field moved its copies
+    anywhere (far outside their life spans). With the keys' times, the path before key 3 is the
+    body's own constant velocity, not the junk."""
+    rng = np.random.default_rng(1)
+    keys, body = 8, rng.uniform([-2, -1, 0], [2, 1, 1.5], (30, 3)) + [40, 0, 0]
+    truth = np.stack([body + [0.0, 3.0 * k, 0.0] for k in range(keys)], axis=1)
+    positions = np.concatenate([truth] * 4)  # copies born at keys 3, 4, 5, 6
+    opacities = np.zeros((120, keys))
+    for j, born in enumerate(range(3, 7)):
+        rows = slice(30 * j, 30 * (j + 1))
+        opacities[rows, born] = 1.0
+        opacities[rows, [k for k in (born - 1, born + 1)]] = 0.3
+        positions[rows, :born - 1] = rng.uniform(-100, 100, (30, born - 1, 3))
+    times = np.arange(keys, dtype=np.float64)
+    pivot, yaw, shift, canonical = fit_rigid_track(positions, opacities, times)
+    for k in range(keys):
+        moved = turn(canonical - pivot, yaw[k]) + pivot + shift[k]
+        np.testing.assert_allclose(moved[:30], truth[:, k], atol=1e-6)
+    # Without the times the junk decides the first keys.
+    _, _, junk, _ = fit_rigid_track(positions, opacities)
+    assert np.abs(junk[0] - shift[0]).max() > 1.0
 
 def pvg_model(velocity: np.ndarray, n: int = 40) -> tuple[SceneModel, np.ndarray]:
     """A model whose dynamic set is two bodies of ``n`` Gaussians moving at constant velocities

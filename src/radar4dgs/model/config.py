@@ -355,6 +355,12 @@ class TrainConfig:
     # better than per-frame poses (calm seeds 1-3, actors at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09
     # dB of novel-view PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
+    # Before the first and after the last training frame an actor's Gaussians were born in (those holding at
+    # least a tenth of its largest frame's opacity mass), its initial path goes on at the velocity of its first
+    # or last two such frames, instead of the field's motion there: the field moves a copy anywhere outside its
+    # life span, and a car entering or leaving the view at a held-out frame is drawn from a pose interpolated
+    # with one of those keys, which no image constrains.
+    rigid_actors_extrapolate: bool = False
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).

@@ -50,8 +50,38 @@ def turn_about_z(offset: np.ndarray, yaw: float) -> np.ndarray:
                      offset[..., 2]], axis=-1)
 
 
-def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                           np.ndarray]:
+# An actor is born at a key when the Gaussians whose opacity peaks there hold at least this share of the
+# opacity mass of its largest such key (a few stray copies elsewhere do not count).
+BORN_SHARE = 0.1
+
+
+def born_span(opacities: np.ndarray) -> tuple[int, int]:
+    """The first and last of K keys an actor's Gaussians were born at, from their (n, K) opacities: keys
+    where the Gaussians peaking there hold at least :data:`BORN_SHARE` of the largest such mass."""
+    own = np.argmax(opacities, axis=1)
+    mass = np.bincount(own, weights=opacities[np.arange(len(own)), own], minlength=opacities.shape[1])
+    born = np.flatnonzero(mass >= BORN_SHARE * mass.max())
+    return int(born[0]), int(born[-1])
+
+
+def extrapolate_ends(yaw: np.ndarray, shift: np.ndarray, times: np.ndarray, first: int, last: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) ``yaw`` and (K, 3) ``shift`` with the keys before ``first`` and after ``last`` replaced by
+    constant-velocity extrapolation from the keys ``first``, ``first + 1`` (``last - 1``, ``last``), yaw
+    held, at the keys' (K,) normalised ``times``; unchanged when ``first == last`` (no velocity)."""
+    yaw, shift = yaw.copy(), shift.copy()
+    if last <= first:
+        return yaw, shift
+    for end, inner, keys in ((first, first + 1, range(first)), (last, last - 1, range(last + 1, len(times)))):
+        velocity = (shift[inner] - shift[end]) / (times[inner] - times[end])
+        for k in keys:
+            shift[k] = shift[end] + velocity * (times[k] - times[end])
+            yaw[k] = yaw[end]
+    return yaw, shift
+
+
+def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The rigid motion of one actor from its Gaussians' (n, K, 3) field ``positions`` and (n, K)
     ``opacities`` (life span included) at K key times: the pivot (3,) (the weighted centroid at the
     key where the actor's opacity mass is largest, the reference), per key the yaw (K,) and shift
@@ -62,7 +92,8 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray) -> tuple[np.nd
     field's position of a copy far from its own time means little. So the motion is chained from
     key to key, each step fitted on the Gaussians that render at both (opacity products as
     weights), and each Gaussian's reference position is its position at its own key (where its
-    opacity peaks) brought back by that key's motion."""
+    opacity peaks) brought back by that key's motion. With the keys' (K,) normalised ``times``, the keys
+    outside the actor's :func:`born_span` follow :func:`extrapolate_ends` instead of the field."""
     keys = positions.shape[1]
     reference = int(np.argmax(opacities.sum(axis=0)))
     pivot = np.average(positions[:, reference], axis=0, weights=opacities[:, reference] + 1e-9)
@@ -75,18 +106,21 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray) -> tuple[np.nd
         step_yaw, step_shift = rigid_step(positions[:, known], positions[:, k], weights, pivot)
         yaw[k] = yaw[known] + step_yaw
         shift[k] = turn_about_z(shift[known], step_yaw) + step_shift
+    if times is not None:
+        yaw, shift = extrapolate_ends(yaw, shift, np.asarray(times, dtype=np.float64), *born_span(opacities))
     own = np.argmax(opacities, axis=1)
     canonical = turn_about_z(positions[np.arange(len(own)), own] - pivot - shift[own], -yaw[own]) + pivot
     return pivot, yaw, shift, canonical
 
 
 @torch.no_grad()
-def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray
-                       ) -> tuple[ActorMotion, Tensor, Tensor]:
+def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray,
+                       extrapolate: bool = False) -> tuple[ActorMotion, Tensor, Tensor]:
     """The initial :class:`ActorMotion` of ``groups`` (one (k,) index array into the dynamic set per
     actor) at (K,) normalised ``key_times``, the (N,) actor index of every dynamic Gaussian (-1 for
     none) and the (N, 3) means they start from (reference-time positions for the actors', the
-    canonical ones for the rest)."""
+    canonical ones for the rest); ``extrapolate``: each actor's path outside the keys it was born at
+    goes on at constant velocity (:func:`fit_rigid_track`)."""
     dynamic = model.dynamic
     means = dynamic.params["means"].detach()
     positions, opacities = [], []
@@ -99,7 +133,8 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     start = means.clone()
     pivots, yaws, shifts = [], [], []
     for a, members in enumerate(groups):
-        pivot, yaw, shift, canonical = fit_rigid_track(positions[members], opacities[members])
+        pivot, yaw, shift, canonical = fit_rigid_track(positions[members], opacities[members],
+                                                       np.asarray(key_times) if extrapolate else None)
         index = torch.as_tensor(members, dtype=torch.long, device=means.device)
         actor[index] = float(a)
         start[index] = torch.as_tensor(canonical, dtype=means.dtype, device=means.device)
@@ -161,12 +196,13 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
 
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
-                       optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0) -> str:
+                       optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
+                       extrapolate: bool = False) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
     them) and, for those moving at least ``min_motion`` x the image width a frame in the image
     (:func:`actor_image_motion`), move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
-    "actors". Returns the line to log."""
+    "actors"; ``extrapolate`` as :func:`rigid_actor_motion`. Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -181,7 +217,7 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
         if not actors:
             return (f"rigid actors: none of {found} actors moves {threshold:.1f} px a frame in the image; the "
                     f"field keeps every dynamic Gaussian{without}")
-    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times)
+    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times, extrapolate)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     return (f"rigid actors: {len(actors)} of {found} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "

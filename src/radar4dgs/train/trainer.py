@@ -257,7 +257,8 @@ class Trainer:
         self._rigid_actors_tried = True
         key_times = self.times[np.asarray(self.train_indices)]
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
-                                    self.config.rigid_actors_lr, self.config.rigid_actors_min_motion))
+                                    self.config.rigid_actors_lr, self.config.rigid_actors_min_motion,
+                                    self.config.rigid_actors_extrapolate))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
