@@ -117,6 +117,7 @@ def test_a_car_entering_late_keeps_its_speed_before_it_is_seen():
     _, _, junk, _ = fit_rigid_track(positions, opacities)
     assert np.abs(junk[0] - shift[0]).max() > 1.0
 
+
 def pvg_model(velocity: np.ndarray, n: int = 40) -> tuple[SceneModel, np.ndarray]:
     """A model whose dynamic set is two bodies of ``n`` Gaussians moving at constant velocities
     (PVG with a period far longer than the sequence: linear to 1e-7), and their index groups."""
