@@ -106,7 +106,7 @@ def test_a_car_entering_late_keeps_its_speed_before_it_is_seen():
     for j, born in enumerate(range(3, 7)):
         rows = slice(30 * j, 30 * (j + 1))
         opacities[rows, born] = 1.0
-        opacities[rows, [k for k in (born - 1, born + 1)]] = 0.3
+        opacities[rows, [born - 1, born + 1]] = 0.3
         positions[rows, :born - 1] = rng.uniform(-100, 100, (30, born - 1, 3))
     times = np.arange(keys, dtype=np.float64)
     pivot, yaw, shift, canonical = fit_rigid_track(positions, opacities, times)
