@@ -54,9 +54,9 @@ class RadarObjectConfig:
     # Inlier returns an object needs for its full planar velocity; with fewer it gets the radial-only estimate.
     # Why: two returns solve the 2x2 system exactly, with no residual to check it, and two returns of two
     # things (or one clutter return) 4-6 degrees apart solve to any speed (50-120 m/s seen in rush traffic),
-    # reported with the prior's small std. 2 (the default): any two returns spreading enough. Opt-in with
-    # tentative_hits, below: together they cost 0.42 dB of novel-view PSNR* at the grid budget on three strict
-    # tuning seeds (docs/research/motion.md, fourteenth pass).
+    # reported with the prior's small std. 2 (the default): any two returns spreading enough. Opt-in (3): with
+    # tentative_hits 2 it cost 0.42 dB of novel-view PSNR* at the grid budget on three strict tuning seeds, one run
+    # each (docs/research/motion.md, fourteenth pass).
     min_full_fit_returns: int = 2
     # Correct the fit for the noise of the returns' directions (RadarConfig.azimuth_std, elevation_std):
     # plain least squares on noisy directions pulls the velocity across the line of sight toward the
@@ -106,9 +106,10 @@ class RadarObjectConfig:
     # detection only within `tentative_gate_chi2`. Why: a new track often knows only its radial velocity, so
     # after one coasted scan its full gate spans tens of metres across the line of sight and takes another
     # object's detection, whose offset the filter then reads as a velocity (a pedestrian tracked at 5 m/s).
-    # 1 (the default): no track is tentative. Opt-in (2): velocity p90 over 36 tuning scenes 0.503 -> 0.440 m/s,
-    # but novel-view PSNR* -0.42 dB at the grid budget on three strict tuning seeds, one run each.
-    tentative_hits: int = 1
+    # 2 (the default since 2026-12-07, with anchor_visible_end): together they bring the per-scene velocity p90
+    # over 36 tuning scenes from 0.503 to 0.367 m/s (anchored alone 0.424) and change novel-view PSNR* by +0.19 dB
+    # over ten strict tuning grid runs (docs/research/motion.md, sixteenth pass). 1: no track is tentative.
+    tentative_hits: int = 2
     # See tentative_hits: the squared Mahalanobis gate of a tentative track that has missed a scan (4 dof;
     # 4.0 keeps about 60 % of true re-detections: a distant crossing car seen every other scan still
     # learns its tangential velocity from them). 0: such a track ends at its first missed scan instead.
@@ -122,11 +123,9 @@ class RadarObjectConfig:
     # The reported velocity is then the body's at that point (about the box centre), not at the returns' centroid:
     # moved to the centroid by the track's yaw rate, the strict tuning seeds' p90 error against the truth's velocity
     # rose on four of five (409: 0.23 -> 0.39 m/s) and against the body's at the centroid fell by at most 0.014.
-    # Opt-in: velocity p90 over 36 tuning scenes 0.503 -> 0.424 m/s; novel-view PSNR* -0.45 dB at the grid budget on
-    # three strict tuning seeds one run each, -0.04 over twelve runs on all five (two or three training seeds each),
-    # so it trains as well; it stays off until the report set is re-measured with it (docs/research/motion.md,
-    # fifteenth pass).
-    anchor_visible_end: bool = False
+    # On by default since 2026-12-07, with tentative_hits 2 (docs/research/motion.md, fifteenth and sixteenth
+    # passes); alone it brings the velocity p90 over 36 tuning scenes from 0.503 to 0.424 m/s.
+    anchor_visible_end: bool = True
     # See anchor_visible_end: tracks slower than this (m/s) keep the centroid (their heading is noise).
     anchor_min_speed: float = 2.0
     # See anchor_visible_end: a track needs this many scans with at least 3 returns to have a length.
