@@ -110,3 +110,19 @@ def test_two_touching_objects_keep_their_own_motion_with_local_medians():
     local = reject_flow_outliers(points_i, points_j, pixels, mask, neighbours=16)
     assert whole[second].mean() < 0.05  # against one median the second object is all "outliers"
     assert local[second].mean() > 0.95 and local[~second].sum() == (~second).sum() - 1 and not local[3]
+
+
+def test_a_given_target_depth_replaces_the_sample_only_where_they_agree():
+    motion = np.array([1.0, -0.2, 0.3])
+    flow, depth_i, depth_j, w2c_i, w2c_j = plane_scene(motion)
+    valid = np.ones((H, W), bool)
+    noisy_j = depth_j * 1.03  # 3 % too far: 0.29 m of false motion along the line of sight
+    given = np.full((H, W), np.nan)
+    given[:, : W // 2] = 9.8  # the exact depth at j (10 + 0.3 - 0.5) for the left half of frame i's pixels
+    given[:10] = 9.8 * 1.5  # beyond the tolerance: the sample stays
+    points_i, points_j, pixels = lift_flow(flow, depth_i, noisy_j, K, w2c_i, w2c_j, valid, target_depth=given,
+                                           target_depth_tolerance=0.2)
+    error = np.abs((points_j - points_i - motion)[:, 2])
+    exact = (pixels[:, 0] < W // 2) & (pixels[:, 1] >= 10)
+    assert error[exact].max() < 1e-6
+    assert error[~exact] == pytest.approx(0.03 * 9.8, rel=1e-3)

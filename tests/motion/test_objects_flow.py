@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from radar4dgs.config import preset
 from radar4dgs.motion.config import FlowConfig
-from radar4dgs.motion.flow import pair_scene_flow, prepare_flow
+from radar4dgs.motion.flow import pair_scene_flow, prepare_flow, radar_target_depth
 from radar4dgs.motion.object_hints import (
     STATIC_TRACK,
     ObjectHint,
@@ -584,3 +584,37 @@ def test_the_fill_changes_the_stored_flow_of_rejected_pixels_not_the_lifted_pair
     before = np.linalg.norm(unfilled.forward[changed] - truth, axis=1).mean()
     after = np.linalg.norm(filled.forward[changed] - truth, axis=1).mean()
     assert after < 0.6 * before  # 3.3 -> 1.6 px
+
+
+@pytest.mark.parametrize(("depth_error", "replaced"), [(1.05, True), (1.3, False)])
+def test_radar_target_depth_takes_the_line_of_sight_from_the_radar_where_the_depth_map_roughly_agrees(
+        depth_error, replaced):
+    """Frame b's depth map puts the object ``depth_error`` too far: sampled at the match, it adds (error - 1) x
+    12 m of false motion along the line of sight. With ``radar_target_depth`` the far end takes the depth its
+    radar prediction gives (exact here) where the two agree within 20 %, and the motion is the truth."""
+    pair = object_pair(shift=40.0, scale=1.0)
+    inputs = {**pair_inputs(pair), "depth_j": np.where(pair["mask_b"], DEPTH * depth_error, 40.0)}
+    hints = {"hints_i": [hint(pair)], "hints_j": [ObjectHint(hint(pair).uv + [40.0, 0.0], pair["velocity"])],
+             "dt": DT}
+    truth = pair["velocity"] * DT
+    runs = {on: pair_scene_flow(FlowConfig(radar_target_depth=on), **inputs, **hints) for on in (False, True)}
+    for run in runs.values():
+        assert len(run.points_i) > 0.5 * pair["mask_a"].sum()
+    today = runs[False].points_j - runs[False].points_i - truth
+    assert np.median(today[:, 2]) == pytest.approx((depth_error - 1) * DEPTH, rel=0.05)
+    moved = runs[True].points_j - runs[True].points_i - truth
+    if replaced:
+        assert np.abs(moved).max() < 0.05
+    else:
+        assert np.array_equal(moved, today)
+
+
+def test_radar_target_depth_is_the_moved_points_depth_in_camera_b():
+    depth = np.full((HEIGHT, WIDTH), 10.0)
+    displacement = np.full((HEIGHT, WIDTH, 3), np.nan)
+    displacement[50:60, 70:90] = [1.0, 0.0, 2.5]
+    world_to_cam_b = np.eye(4)
+    world_to_cam_b[2, 3] = -1.0  # camera b one metre further forward
+    out = radar_target_depth(displacement, PairGeometry(depth, K, np.eye(4), world_to_cam_b, DT))
+    assert np.isnan(out[:50]).all() and np.isnan(out[:, :70]).all()
+    assert out[50:60, 70:90] == pytest.approx(10.0 + 2.5 - 1.0)

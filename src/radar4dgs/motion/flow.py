@@ -51,7 +51,7 @@ from radar4dgs.io.scene import read_mask_png
 from radar4dgs.io.scene_files import FLOW_MASKS, prepared_depth_path
 from radar4dgs.motion.config import FlowConfig, flow_settings_at_width
 from radar4dgs.motion.lift import lift_flow, reject_flow_outliers
-from radar4dgs.motion.object_hints import ObjectHint, frame_hints, static_hint
+from radar4dgs.motion.object_hints import ObjectHint, frame_hints, moved_in_camera_b, static_hint
 from radar4dgs.motion.objects_flow import (
     PairGeometry,
     claimed_predictions,
@@ -195,12 +195,14 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     gray_i, gray_j = to_gray(image_i), to_gray(image_j)
     failed = np.zeros(mask_i.shape, dtype=bool)
     models: dict[str, int] = {}
-    predicted = None
+    predicted = target_depth = None
     components_i = mask_i  # before the static returns' parts leave it: the components the objects claimed
     if config.radar_guided:
         geometry = PairGeometry(depth_i, K, world_to_cam_i, world_to_cam_j, dt)
-        forward, failed, models, static, predicted = object_flow(gray_i, gray_j, forward, mask_i, hints_i or [],
-                                                                 geometry, config)
+        forward, failed, models, static, predicted, displacement = object_flow(
+            gray_i, gray_j, forward, mask_i, hints_i or [], geometry, config)
+        if config.radar_target_depth:
+            target_depth = radar_target_depth(displacement, geometry)
         backward = object_flow(gray_j, gray_i, backward, mask_j, hints_j or [],
                                PairGeometry(depth_j, K, world_to_cam_j, world_to_cam_i, -dt), config).flow
         mask_i = mask_i & ~static  # the static returns' part of a mask component is not a mover's
@@ -216,7 +218,8 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
     points_i, points_j, pixels = lift_flow(
         forward, depth_i, lift_j, K, world_to_cam_i, world_to_cam_j,
         mask_i & consistent & reliable, config.depth_edge_tolerance,
-        mask_j if config.require_dynamic_target else None, scale)
+        mask_j if config.require_dynamic_target else None, scale, target_depth,
+        config.radar_target_depth_tolerance)
     if config.outlier_filter:
         keep = reject_flow_outliers(points_i, points_j, pixels, mask_i, config.outlier_min_deviation,
                                     config.outlier_mad_factor, config.outlier_min_points,
@@ -247,6 +250,21 @@ def pair_scene_flow(config: FlowConfig, image_i: np.ndarray, image_j: np.ndarray
             forward[take] = guess[take]
             filled |= take
     return PairFlow(forward, consistent, points_i, points_j, pixels, reliable, models, filled)
+
+
+def radar_target_depth(displacement: np.ndarray, geometry: PairGeometry) -> np.ndarray:
+    """(H, W) z-depth in camera b of each pixel of frame a moved by its (H, W, 3) world ``displacement`` (NaN
+    where it has none or no valid depth; ``FlowConfig.radar_target_depth``)."""
+    out = np.full(geometry.depth.shape, np.nan)
+    rows, cols = np.nonzero(np.isfinite(displacement).all(axis=-1))
+    z = geometry.depth[rows, cols]
+    valid = np.isfinite(z) & (z > 0)
+    rows, cols = rows[valid], cols[valid]
+    if len(rows):
+        moved = moved_in_camera_b(np.stack([cols, rows], axis=1), geometry.depth[rows, cols], geometry.K,
+                                  geometry.world_to_cam_a, geometry.world_to_cam_b, displacement[rows, cols])
+        out[rows, cols] = moved[:, 2]
+    return out
 
 
 def oracle_pair_flow(scene, index_i: int, index_j: int, mask_i: np.ndarray) -> PairFlow:

@@ -64,7 +64,8 @@ def backproject(pixels: np.ndarray, z: np.ndarray, K: np.ndarray, world_to_cam: 
 def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.ndarray,
               world_to_cam_i: np.ndarray, world_to_cam_j: np.ndarray, valid: np.ndarray,
               edge_tolerance: float = 0.1, target_mask: np.ndarray | None = None,
-              target_scale: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              target_scale: np.ndarray | None = None, target_depth: np.ndarray | None = None,
+              target_depth_tolerance: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Lift 2D flow i -> j to world-frame 3D point pairs (pseudo scene flow).
 
     Pixel x of frame i with depth ``depth_i[x]`` gives the world point at time i; its match
@@ -81,6 +82,9 @@ def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.
             neighbours are all in it (e.g. frame j's dynamic mask).
         target_scale: optional (H, W) factor of frame i's pixels applied to the depth sampled for
             them in ``depth_j`` (one object scale for both ends of a pair).
+        target_depth: optional (H, W) depth at j of frame i's pixels from elsewhere (their radar object's
+            prediction; NaN: none). It replaces the sample where the two agree within
+            ``target_depth_tolerance`` (relative); the sample must still be valid.
     Returns:
         points_i (M, 3), points_j (M, 3) float64 world points and pixels (M, 2) float64 (u, v) of
         the kept pixels: ``valid`` with a finite positive depth_i and a valid depth_j sample.
@@ -101,6 +105,11 @@ def lift_flow(flow: np.ndarray, depth_i: np.ndarray, depth_j: np.ndarray, K: np.
         ok &= corners > 0.5
     if target_scale is not None:
         z_j = z_j * np.asarray(target_scale, dtype=np.float64)[rows, cols]
+    if target_depth is not None:
+        given = np.asarray(target_depth, dtype=np.float64)[rows, cols]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            agree = np.abs(given / z_j - 1.0) <= target_depth_tolerance  # NaN (none) and invalid samples: False
+        z_j = np.where(ok & agree, given, z_j)
     pixels, targets, z_j = pixels[ok], targets[ok], z_j[ok]
     points_i = backproject(pixels, z_i[rows[ok], cols[ok]], K, world_to_cam_i)
     points_j = backproject(targets, z_j, K, world_to_cam_j)

@@ -176,6 +176,20 @@ def passes_camera(targets: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.linalg.norm(targets - np.asarray(K, dtype=np.float64)[:2, 2], axis=1) >= BESIDE_CAMERA / 2
 
 
+def moved_in_camera_b(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, world_to_cam_a: np.ndarray,
+                      world_to_cam_b: np.ndarray, displacement: np.ndarray) -> np.ndarray | None:
+    """(N, 3) camera-b coordinates of frame a's (N, 2) ``pixels`` lifted with their (N,) ``depth`` (invalid ones
+    take the median of the valid) and moved by the world ``displacement`` (3,); None without any valid depth.
+    Shared by :func:`predicted_targets` (where they land) and the flow's radar target depth (how far)."""
+    z = np.asarray(depth, dtype=np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    if not valid.any():
+        return None
+    z = np.where(valid, z, np.median(z[valid]))
+    world = backproject(np.asarray(pixels, dtype=np.float64), z, K, world_to_cam_a) + displacement
+    return world @ world_to_cam_b[:3, :3].T + world_to_cam_b[:3, 3]
+
+
 def predicted_targets(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, world_to_cam_a: np.ndarray,
                       world_to_cam_b: np.ndarray, displacement: np.ndarray) -> np.ndarray | None:
     """Where an object's pixels of frame a land in frame b if its points move by ``displacement``.
@@ -192,13 +206,9 @@ def predicted_targets(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, worl
         be dropped (at 5 Hz an oncoming car 16 m ahead passes the camera within two frames; without
         its prediction the dense flow kept it in place and the pairs were lifted onto the car behind it).
     """
-    z = np.asarray(depth, dtype=np.float64)
-    valid = np.isfinite(z) & (z > 0)
-    if not valid.any():
+    cam = moved_in_camera_b(pixels, depth, K, world_to_cam_a, world_to_cam_b, displacement)
+    if cam is None:
         return None
-    z = np.where(valid, z, np.median(z[valid]))
-    world = backproject(np.asarray(pixels, dtype=np.float64), z, K, world_to_cam_a) + displacement
-    cam = world @ world_to_cam_b[:3, :3].T + world_to_cam_b[:3, 3]
     K = np.asarray(K, dtype=np.float64)
     in_front = cam[:, 2] > MIN_TARGET_DEPTH
     uv = (cam @ K.T)[:, :2] / np.where(in_front, cam[:, 2], 1.0)[:, None]

@@ -61,18 +61,19 @@ MODELS = ("dense", "translation", "radar", "matched")
 
 
 class ObjectFlow(NamedTuple):
-    """:func:`object_flow`'s result: ``flow`` (H, W, 2) float32; ``failed`` (H, W) bool pixels of
-    components whose chosen motion explains the images no better than chance (to drop); ``counts``
-    components per model ("no_radar": today's translation step, no radar object; "static": parts
-    given to the static returns); ``static`` (H, W) bool mask pixels given to the static returns
-    (not movers: not to lift; they keep the dense flow); ``predicted`` (H, W, 2) float32 each object
-    pixel's radar-predicted motion, NaN where its object has none."""
+    """:func:`object_flow`'s result: ``flow`` (H, W, 2) float32; ``failed`` (H, W) bool pixels of components
+    whose chosen motion explains the images no better than chance (to drop); ``counts`` components per model
+    ("no_radar": today's translation step, no radar object; "static": parts given to the static returns);
+    ``static`` (H, W) bool mask pixels given to the static returns (not movers: not to lift; they keep the dense
+    flow); ``predicted`` (H, W, 2) float32 each object pixel's radar-predicted motion, NaN where its object has
+    none; ``displacement`` (H, W, 3) float32 its object's world displacement over the pair (velocity x dt)."""
 
     flow: np.ndarray
     failed: np.ndarray
     counts: dict[str, int]
     static: np.ndarray
     predicted: np.ndarray
+    displacement: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -209,6 +210,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
     failed = np.zeros(mask.shape, dtype=bool)
     static = np.zeros(mask.shape, dtype=bool)
     predicted = np.full(out.shape, np.nan, dtype=np.float32)
+    displacement = np.full((*mask.shape, 3), np.nan, dtype=np.float32)
     counts = dict.fromkeys((*MODELS, "no_radar", "static"), 0)
     count, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
     static_returns = next((hint for hint in hints if hint.track == STATIC_TRACK), None)
@@ -256,6 +258,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
                                            config)
             if "radar" in candidates:
                 predicted[rows[part], cols[part]] = candidates["radar"] - pixels[part]
+                displacement[rows[part], cols[part]] = hint.velocity * geometry.dt
             if 0 < config.radar_rigid_min_returns <= len(hint.uv) and "radar" in candidates:
                 model, motion = rigid_motion(gray_a, gray_b, part_mask, pixels[part], candidates, config)
             else:
@@ -269,7 +272,7 @@ def object_flow(gray_a: np.ndarray, gray_b: np.ndarray, flow: np.ndarray, mask: 
             out[rows[part], cols[part]] = motion
             failed[rows[part], cols[part]] = no_better_than_chance(gray_a, gray_b, pixels[part],
                                                                    pixels[part] + motion, config)
-    return ObjectFlow(out, failed, counts, static, predicted)
+    return ObjectFlow(out, failed, counts, static, predicted, displacement)
 
 
 def rigid_motion(gray_a: np.ndarray, gray_b: np.ndarray, component: np.ndarray, pixels: np.ndarray,
