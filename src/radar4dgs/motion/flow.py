@@ -261,7 +261,7 @@ def radar_target_depth(displacement: np.ndarray, geometry: PairGeometry) -> np.n
     valid = np.isfinite(z) & (z > 0)
     rows, cols = rows[valid], cols[valid]
     if len(rows):
-        moved = moved_in_camera_b(np.stack([cols, rows], axis=1), geometry.depth[rows, cols], geometry.K,
+        moved = moved_in_camera_b(np.stack([cols, rows], axis=1), z[valid], geometry.K,
                                   geometry.world_to_cam_a, geometry.world_to_cam_b, displacement[rows, cols])
         out[rows, cols] = moved[:, 2]
     return out

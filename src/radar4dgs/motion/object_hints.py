@@ -179,7 +179,8 @@ def passes_camera(targets: np.ndarray, K: np.ndarray) -> np.ndarray:
 def moved_in_camera_b(pixels: np.ndarray, depth: np.ndarray, K: np.ndarray, world_to_cam_a: np.ndarray,
                       world_to_cam_b: np.ndarray, displacement: np.ndarray) -> np.ndarray | None:
     """(N, 3) camera-b coordinates of frame a's (N, 2) ``pixels`` lifted with their (N,) ``depth`` (invalid ones
-    take the median of the valid) and moved by the world ``displacement`` (3,); None without any valid depth.
+    take the median of the valid) and moved by the world ``displacement``, (3,) or one a pixel (N, 3); None without
+    any valid depth.
     Shared by :func:`predicted_targets` (where they land) and the flow's radar target depth (how far)."""
     z = np.asarray(depth, dtype=np.float64)
     valid = np.isfinite(z) & (z > 0)
