@@ -3,11 +3,10 @@ pixels the flow stage lifted, their 3-D motion error and the stored 2-D flow's e
 
 ``radar4dgs frontend-eval`` scores all moving pixels together, where the cars near the ego outweigh everything else;
 this splits the figure by mover, to show which kind of mover the flow fails (crossing cars 40-60 m ahead, say).
-A pixel belongs to the mover whose true displacement over the pair its own true displacement matches within
-``--match`` m (the generator's movers are rigid and translate over a pair; two movers with the same velocity, such
-as oncoming cars at one speed, share their pixels).
+A moving pixel belongs to the mover whose generator box holds its true surface point in frame i
+(:func:`radar4dgs.evaluate.field_objects.box_owners`, as the field's per-object error assigns them).
 
-    python benchmarks/lifted_by_object.py SCENE [SCENE ...] [--prepared-name prepared] [--match 0.3] [--tag TAG]
+    python benchmarks/lifted_by_object.py SCENE [SCENE ...] [--prepared-name prepared] [--tag TAG]
                                           [--out benchmarks/results/lifted-by-object.json]
 
 ``--tag`` names the setting the scenes were prepared with; results of other tags already in ``--out`` are kept.
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from radar4dgs.evaluate.field_objects import box_owners
 from radar4dgs.evaluate.frontend import moving_ground_truth
 from radar4dgs.io.atomic import atomic_write_json
 from radar4dgs.io.scene import read_scene
@@ -38,23 +38,23 @@ def quantiles(values: list[float]) -> dict[str, float | None]:
     return {"median": float(np.median(values)), "p90": float(np.percentile(values, 90))}
 
 
-def scene_by_object(root: Path, prepared_name: str, match: float) -> list[dict]:
+def scene_by_object(root: Path, prepared_name: str) -> list[dict]:
     """One record per ground-truth mover of the scene at ``root``: pixels, lifted, errors (module doc)."""
     scene = read_scene(root)
-    truth = moving_ground_truth(scene)
-    stamps = np.array([frame.timestamp for frame in scene.frames])
+    truth = [obj for obj in moving_ground_truth(scene) if len(obj.get("dims") or ()) == 3]
     records = {o["id"]: {"id": o["id"], "role": o.get("role"), "class": o.get("class"), "pixels": 0,
                          "scene_flow": [], "flow_2d": []} for o in truth}
     for pair in load_flow_pairs(root / prepared_name):
         i, j = int(pair["index_i"]), int(pair["index_j"])
         world_i, world_j, valid = gt_scene_flow(scene, i, j)
         motion = world_j - world_i
-        moving = scene.load_optional("gt/dynamic_mask", i) > 0
+        moving = (scene.load_optional("gt/dynamic_mask", i) > 0) & valid
+        owners = np.full(moving.shape, -1, dtype=np.int64)
+        owners[moving] = box_owners(world_i[moving], truth, i)
         flow_truth, flow_valid = gt_flow_2d(scene, i, j)
         cols, rows = pair["pixels"][:, 0].astype(np.int64), pair["pixels"][:, 1].astype(np.int64)
-        for obj in truth:
-            step = np.asarray(obj["velocities"][i], dtype=np.float64)[:3] * (stamps[j] - stamps[i])
-            own = moving & valid & (np.linalg.norm(motion - step, axis=-1) < match)
+        for k, obj in enumerate(truth):
+            own = owners == k
             record = records[obj["id"]]
             record["pixels"] += int(own.sum())
             record["flow_2d"] += np.linalg.norm(pair["flow"] - flow_truth, axis=-1)[own & flow_valid].tolist()
@@ -75,7 +75,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", type=Path, nargs="+")
     parser.add_argument("--prepared-name", default="prepared", help="the prepared folder inside each scene")
-    parser.add_argument("--match", type=float, default=0.3, help="m: a pixel's true displacement vs its mover's")
     parser.add_argument("--tag", default="defaults", help="the setting the scenes were prepared with")
     parser.add_argument("--out", type=Path, default=RESULTS / "lifted-by-object.json")
     args = parser.parse_args()
@@ -84,7 +83,7 @@ def main() -> None:
     report.setdefault("tags", {})[args.tag] = {
         "command": f"python benchmarks/lifted_by_object.py SCENE ... --tag {args.tag}", "scenes": {}}
     for root in args.scenes:
-        rows = scene_by_object(root, args.prepared_name, args.match)
+        rows = scene_by_object(root, args.prepared_name)
         report["tags"][args.tag]["scenes"][root.name] = rows
         print(root.name)
         for row in rows:
