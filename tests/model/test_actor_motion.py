@@ -75,3 +75,42 @@ def test_acceleration_is_zero_at_constant_velocity_and_counts_a_jolt():
     jump = 0.3 / (0.1 / spacing_mean)
     assert float(motion.acceleration().detach()) == pytest.approx(jump ** 2 / 2, rel=1e-5)  # mean over 2 changes
     assert ActorMotion(keys[:2], torch.zeros(1, 3), yaw[:, :2], shift[:, :2]).acceleration() == 0.0
+
+
+def arc_motion(radius: float, speed: float, keys: int, sideslip: float, duration: float, yaw_turns: bool
+               ) -> tuple[ActorMotion, float]:
+    """One body driving a circle of ``radius`` m at ``speed`` m/s for ``duration`` s, sampled at ``keys`` even keys,
+    its yaw following the path (plus a constant ``sideslip``) or held at 0; and the path's turn a key."""
+    times = torch.linspace(0.0, 1.0, keys, dtype=torch.float64)
+    angle = speed * duration * times / radius
+    shift = torch.stack([radius * torch.sin(angle), radius * (1 - torch.cos(angle)), torch.zeros_like(angle)], -1)
+    yaw = (angle + sideslip) if yaw_turns else torch.zeros_like(angle)
+    return ActorMotion(times, torch.zeros(1, 3, dtype=torch.float64), yaw[None], shift[None]), float(angle[1])
+
+
+@settings(max_examples=25, deadline=None)
+@given(radius=st.floats(8.0, 200.0), speed=st.floats(4.0, 25.0), sideslip=st.floats(-0.2, 0.2),
+       keys=st.integers(3, 12))
+def test_heading_mismatch_is_zero_for_a_body_turning_with_its_path_and_its_turn_squared_when_it_does_not(
+        radius, speed, sideslip, keys):
+    duration = min(2.0, 0.9 * math.pi * radius / speed)  # less than half the circle
+    turning, _ = arc_motion(radius, speed, keys, sideslip, duration, yaw_turns=True)
+    assert float(turning.heading_mismatch(duration).detach()) == pytest.approx(0.0, abs=1e-12)
+    held, turn = arc_motion(radius, speed, keys, 0.0, duration, yaw_turns=False)
+    # Chords of a circle turn by the arc's angle a key, which the held yaw never does.
+    assert float(held.heading_mismatch(duration).detach()) == pytest.approx(turn ** 2, rel=1e-9)
+
+
+def test_heading_mismatch_ignores_a_still_body_and_pulls_only_the_yaw():
+    still = ActorMotion(torch.linspace(0, 1, 5), torch.zeros(1, 3), torch.tensor([[0.0, 0.5, -0.3, 1.0, 0.2]]),
+                        torch.zeros(1, 5, 3))
+    assert float(still.heading_mismatch(10.0).detach()) == 0.0
+    held, turn = arc_motion(20.0, 10.0, 6, 0.0, 2.0, yaw_turns=False)
+    # At half the minimum speed the pairs count half, but they are all there is: the same mean.
+    slow, _ = arc_motion(20.0, 10.0, 6, 0.0, 2.0, yaw_turns=False)
+    assert float(slow.heading_mismatch(2.0, min_speed=20.0).detach()) == pytest.approx(turn ** 2, rel=1e-9)
+    held.heading_mismatch(2.0).backward()
+    assert held.shift.grad is None or float(held.shift.grad.abs().max()) == 0.0
+    assert float(held.yaw.grad.abs().max()) > 0.0
+    assert ActorMotion(torch.tensor([0.0, 1.0]), torch.zeros(1, 3), torch.zeros(1, 2),
+                       torch.zeros(1, 2, 3)).heading_mismatch(1.0) == 0.0

@@ -349,6 +349,9 @@ class TrainConfig:
     # Weight of the rigid actors' smoothness term (ActorMotion.acceleration: squared change of velocity from one
     # key interval to the next, m and rad): per-frame poses fitted to their own images alone drift off the path.
     rigid_actors_smoothness: float = 0.0
+    # Weight of the rigid actors' heading term (ActorMotion.heading_mismatch: each actor turns as its path turns,
+    # rad²). Without it nothing ties an actor's yaw to where it goes: straight cars were fitted turning by 20-110°.
+    rigid_actors_heading: float = 0.0
     # Only actors whose centroid moves at least this far in the image from one frame to the next (90th
     # percentile over their consecutive visible frames; a fraction of the image width) move rigidly; the field
     # keeps the others. A lead car followed at the ego's speed hardly moves in the image, and the field holds it
@@ -459,8 +462,9 @@ class TrainConfig:
                              f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        if self.rigid_actors_smoothness < 0:
-            raise ValueError(f"rigid_actors_smoothness must be >= 0, got {self.rigid_actors_smoothness}")
+        for name in ("rigid_actors_smoothness", "rigid_actors_heading"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.rigid_actors_min_motion < 0:
             raise ValueError(f"rigid_actors_min_motion must be >= 0, got {self.rigid_actors_min_motion}")
         if not 0.0 <= self.rigid_actors_at < 1.0:

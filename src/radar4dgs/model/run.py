@@ -44,7 +44,8 @@ POSES_FILE = "poses.json"
 # pose_smooth, pose_prior, appearance: the regularisers of pose refinement and exposure
 # compensation (logged only by runs that refine).
 LOSS_TERMS = ("l1", "ssim", "depth", "dynamic_depth", "object", "sky", "over_movers", "flow", "radar", "velocity",
-              "acceleration", "pose_smooth", "pose_prior", "appearance", "actor_smooth")
+              "acceleration", "pose_smooth", "pose_prior", "appearance", "actor_smooth",
+              "actor_heading")
 
 
 @dataclass

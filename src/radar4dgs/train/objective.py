@@ -138,7 +138,7 @@ def loss_weights(config: TrainConfig) -> dict[str, float]:
             "velocity": c.velocity_weight, "acceleration": c.acceleration_weight,
             "pose_smooth": config.poses.smooth_weight,
             "pose_prior": config.poses.prior_weight, "appearance": config.poses.appearance_weight,
-            "actor_smooth": config.rigid_actors_smoothness}
+            "actor_smooth": config.rigid_actors_smoothness, "actor_heading": config.rigid_actors_heading}
 
 
 def total_loss(losses: dict[str, Tensor], config: TrainConfig) -> Tensor:

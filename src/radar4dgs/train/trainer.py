@@ -142,6 +142,7 @@ class Trainer:
             raise FileNotFoundError(f"{self.prepared}: no prepared depth (run `radar4dgs prepare "
                                     f"{self.scene_path}` first)")
         self.times = normalized_times(self.scene)
+        self.unit_seconds = float(self.scene.frames[-1].timestamp - self.scene.frames[0].timestamp)
         self.extent = scene_extent(self.scene)
         self.train_indices = self.scene.train_indices
         self.masks = dynamic_masks(self.scene, self.prepared, self.config.mask_source, self.train_indices,
@@ -418,6 +419,8 @@ class Trainer:
         losses.update(refinement_losses(state.poses, state.appearance))
         if model.actor_motion is not None:
             losses["actor_smooth"] = model.actor_motion.acceleration()
+            if config.rigid_actors_heading > 0:
+                losses["actor_heading"] = model.actor_motion.heading_mismatch(self.unit_seconds)
         check_finite(losses, step)
         loss = total_loss(losses, config)
         for optimizer in state.optimizers.values():
