@@ -1,4 +1,5 @@
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,6 +18,8 @@ from radar4dgs.train.rigid_actors import (
     extrapolate_ends,
     fit_rigid_track,
     procrustes_yaw,
+    radar_corrected_shift,
+    radar_key_velocities,
     rigid_actor_motion,
     rigid_members,
     start_rigid_actors,
@@ -201,3 +204,55 @@ def test_only_actors_moving_far_enough_in_the_image_become_rigid(monkeypatch):
     optimizers = {"dynamic": adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)}
     line = start_rigid_actors(model, Scene(), None, np.linspace(0.1, 0.9, 5), optimizers, 0.002, min_motion=0.2)
     assert "none of 2 actors moves 20.0 px" in line and model.actor_motion is None and "actors" not in optimizers
+
+
+def crossing_car(keys: int, speed: float, slide: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                      np.ndarray]:
+    """A car crossing 50 m ahead of a camera driving along x at 10 m/s, keys 0.2 s apart: its true planar path
+    (K, 2), the camera centres (K, 3), the times (K,), and a path slid along the line of sight by ``slide`` (K,) m
+    as (pivot (3,), shift (K, 3))."""
+    seconds = 0.2 * np.arange(keys)
+    centres = np.stack([10.0 * seconds, np.zeros(keys), np.full(keys, 1.5)], axis=1)
+    truth = np.stack([50.0 + 10.0 * seconds, -10.0 + speed * seconds], axis=1)
+    sight = truth - centres[:, :2]
+    sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+    path = truth + slide[:, None] * sight
+    pivot = np.array([*path[0], 0.7])
+    shift = np.concatenate([path - path[0], np.zeros((keys, 1))], axis=1)
+    return truth, centres, seconds, pivot, shift
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), keys=st.integers(4, 12), speed=st.floats(5.0, 20.0))
+def test_the_radar_velocity_puts_back_a_path_slid_along_the_line_of_sight(seed, keys, speed):
+    slide = np.random.default_rng(seed).normal(0.0, 2.0, keys)
+    slide -= slide.mean()  # the depth prior keeps the mean; the steps come from the radar
+    truth, centres, seconds, pivot, shift = crossing_car(keys, speed, slide)
+    velocity = np.tile([10.0, speed], (keys, 1))  # the true velocity, every key
+    fixed = radar_corrected_shift(pivot, shift, centres, velocity, np.full(keys, 0.1), seconds)
+    path = pivot[:2] + fixed[:, :2]
+    before = np.abs(np.diff(pivot[:2] + shift[:, :2], axis=0) - np.diff(truth, axis=0)).max()
+    after = np.abs(np.diff(path, axis=0) - np.diff(truth, axis=0)).max()
+    assert after < 0.05 + 0.02 * before
+    np.testing.assert_allclose(fixed[:, 2], shift[:, 2])
+    # Without two known keys in a row nothing moves.
+    alone = velocity.copy()
+    alone[1::2] = np.nan
+    np.testing.assert_array_equal(radar_corrected_shift(pivot, shift, centres, alone, np.full(keys, 0.1), seconds),
+                                  shift)
+
+
+def test_radar_key_velocities_trust_held_objects_with_returns_and_a_tight_velocity():
+    def radar_object(track, returns, std):
+        return SimpleNamespace(track=track, num_returns=returns, velocity=np.array([3.0 + track, 1.0, 0.0]),
+                               velocity_covariance=np.diag([std ** 2, (std / 2) ** 2]))
+
+    objects = [[radar_object(1, 8, 0.3), radar_object(2, 20, 0.2)],  # holds 1 only
+               [radar_object(1, 2, 0.1)],                            # too few returns
+               [radar_object(1, 9, 1.5)],                            # too loose
+               [radar_object(1, 5, 0.01), radar_object(3, 12, 0.2)]]  # holds both: the one with more returns
+    held = {0: [{"track": 1}], 1: [{"track": 1}], 2: [{"track": 1}], 3: [{"track": 1}, {"track": 3}]}
+    velocity, std = radar_key_velocities(held, objects, np.array([0, 1, 2, 3]))
+    np.testing.assert_allclose(velocity[[0, 3]], [[4.0, 1.0], [6.0, 1.0]])
+    assert np.isnan(velocity[[1, 2]]).all() and np.isnan(std[[1, 2]]).all()
+    np.testing.assert_allclose(std[[0, 3]], [0.3, 0.2])

@@ -284,11 +284,13 @@ def test_rigid_actors_take_over_their_gaussians_are_saved_and_resume(prepared, t
     def two_actors(model, scene, radar_objects=None, config=None):  # discovery itself: tests/actors
         given.append(radar_objects)
         half = len(model.dynamic) // 2
-        return [SimpleNamespace(gaussians=np.arange(half)), SimpleNamespace(gaussians=np.arange(half, 2 * half))]
+        return [SimpleNamespace(gaussians=np.arange(half), radar={}),
+                SimpleNamespace(gaussians=np.arange(half, 2 * half), radar={})]
 
     monkeypatch.setattr(rigid_module, "discover_actors", two_actors)
     scene, prep = prepared
-    config = tiny_config(rigid_actors_at=0.75, rigid_actors_heading=1.0)  # the switch at step 18 of 24, in stage 3
+    # The switch at step 18 of 24, in stage 3; the radar path finds no radar object held and leaves the paths.
+    config = tiny_config(rigid_actors_at=0.75, rigid_actors_heading=1.0, rigid_actors_radar_path=True)
     logs: list[str] = []
     unbroken = Trainer(scene, prep, tmp_path / "a", config, progress=False, log=logs.append).train()
     headings = [h["actor_heading"] for h in unbroken.history if "actor_heading" in h]

@@ -367,6 +367,10 @@ class TrainConfig:
     # 101-102, +0.19 / +0.86 at full small on 404 / 409 (benchmarks/results/rigid-actors-extrapolate.json).
     # No effect while rigid_actors_at is 0.
     rigid_actors_extrapolate: bool = True
+    # At the switch, each actor's path moves along the line of sight to fit the velocities of the radar objects it
+    # holds (train.rigid_actors.radar_corrected_shift): the images place a far car across the line of sight, not
+    # along it, and far crossing cars' actors were metres off there (their paths turning 50 degrees on straight roads).
+    rigid_actors_radar_path: bool = False
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).

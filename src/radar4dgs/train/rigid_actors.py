@@ -11,6 +11,7 @@ time.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -18,7 +19,9 @@ from torch import Tensor, nn
 
 from radar4dgs.actors.discover import discover_actors
 from radar4dgs.depth.geometry import project
+from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.actor_motion import ActorMotion
+from radar4dgs.model.pose_refine import camera_centres
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.radar.objects import optional_radar_objects
 from radar4dgs.train.optimizers import adam
@@ -113,14 +116,92 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndar
     return pivot, yaw, shift, canonical
 
 
+class RadarPaths(NamedTuple):
+    """What :func:`radar_corrected_shift` needs of every actor: per actor the (K, 2) velocities and (K,) their
+    stds (:func:`radar_key_velocities`), and per key the (K, 3) camera centre and the time (K,) in seconds."""
+
+    velocities: list[tuple[np.ndarray, np.ndarray]]
+    centres: np.ndarray
+    seconds: np.ndarray
+
+
+# Trusting an actor's radar object at a frame: at least this many returns, and a velocity standard deviation
+# (the larger axis of its covariance) of at most this (m/s). Fewer returns fit some velocity by chance.
+RADAR_PATH_MIN_RETURNS = 3
+RADAR_PATH_MAX_STD = 1.0
+# Standard deviations (m) of the field's pivot path across the line of sight (the images place it there to a few
+# centimetres at 40 m) and along it (the depth maps, metres on a far car), weighting the radar path's fusion.
+ACROSS_SIGHT_STD = 0.1
+ALONG_SIGHT_STD = 3.0
+
+
+def radar_key_velocities(actor_radar: dict[int, list[dict]], radar_objects: list[list], key_frames: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Per key (frame indices (K,)): the planar world velocity (K, 2) of the trusted radar object an actor holds
+    there (``actor_radar``: :attr:`radar4dgs.actors.discover.Actor.radar`; of several, the one with most returns)
+    and its standard deviation (K,) in m/s; NaN where it holds none."""
+    velocity, std = np.full((len(key_frames), 2), np.nan), np.full(len(key_frames), np.nan)
+    for k, frame in enumerate(key_frames):
+        tracks = {hit["track"] for hit in actor_radar.get(int(frame), [])}
+        held = [o for o in radar_objects[int(frame)] if o.track in tracks and o.num_returns >= RADAR_PATH_MIN_RETURNS]
+        if not held:
+            continue
+        best = max(held, key=lambda o: o.num_returns)
+        sigma = float(np.sqrt(max(np.linalg.eigvalsh(np.asarray(best.velocity_covariance))[-1], 0.0)))
+        if sigma <= RADAR_PATH_MAX_STD:
+            velocity[k], std[k] = best.velocity[:2], max(sigma, 0.05)
+    return velocity, std
+
+
+def radar_corrected_shift(pivot: np.ndarray, shift: np.ndarray, centres: np.ndarray, velocity: np.ndarray,
+                          velocity_std: np.ndarray, seconds: np.ndarray) -> np.ndarray:
+    """(K, 3) ``shift`` with the pivot's planar path ``pivot + shift`` moved to fit the radar's velocities: least
+    squares over per-key planar corrections, keeping each key's position across the line of sight from the
+    camera ``centres`` (K, 3) (std :data:`ACROSS_SIGHT_STD`), loosely along it (:data:`ALONG_SIGHT_STD`), and
+    each step between keys whose (K, 2) ``velocity`` (NaN where none; std (K,) m/s) is known matching their mean
+    velocity times the (K,) ``seconds`` between them. The images fix where a far car is seen, not how far away:
+    along the line of sight the radar's Doppler says how it moves. Unchanged without two such keys in a row."""
+    keys = len(shift)
+    path = pivot[:2] + shift[:, :2]
+    known = np.isfinite(velocity[:, 0])
+    steps = [k for k in range(keys - 1) if known[k] and known[k + 1]]
+    if not steps:
+        return shift.copy()
+    sight = path - centres[:, :2]
+    sight /= np.maximum(np.linalg.norm(sight, axis=1, keepdims=True), 1e-9)
+    across = np.stack([-sight[:, 1], sight[:, 0]], axis=1)
+    rows, rhs = [], []
+    for k in range(keys):  # each key's correction d_k (2 unknowns at 2k, 2k+1)
+        for direction, std in ((across[k], ACROSS_SIGHT_STD), (sight[k], ALONG_SIGHT_STD)):
+            row = np.zeros(2 * keys)
+            row[2 * k:2 * k + 2] = direction / std
+            rows.append(row)
+            rhs.append(0.0)
+    for k in steps:
+        dt = seconds[k + 1] - seconds[k]
+        std = dt * 0.5 * np.hypot(velocity_std[k], velocity_std[k + 1])
+        moved = 0.5 * (velocity[k] + velocity[k + 1]) * dt - (path[k + 1] - path[k])
+        for axis in range(2):
+            row = np.zeros(2 * keys)
+            row[2 * (k + 1) + axis], row[2 * k + axis] = 1.0 / std, -1.0 / std
+            rows.append(row)
+            rhs.append(moved[axis] / std)
+    correction = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0].reshape(keys, 2)
+    out = shift.copy()
+    out[:, :2] += correction
+    return out
+
+
 @torch.no_grad()
 def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray,
-                       extrapolate: bool = False) -> tuple[ActorMotion, Tensor, Tensor]:
+                       extrapolate: bool = False, radar_paths: RadarPaths | None = None
+                       ) -> tuple[ActorMotion, Tensor, Tensor]:
     """The initial :class:`ActorMotion` of ``groups`` (one (k,) index array into the dynamic set per
     actor) at (K,) normalised ``key_times``, the (N,) actor index of every dynamic Gaussian (-1 for
     none) and the (N, 3) means they start from (reference-time positions for the actors', the
     canonical ones for the rest); ``extrapolate``: each actor's path outside the keys it was born at
-    goes on at constant velocity (:func:`fit_rigid_track`)."""
+    goes on at constant velocity (:func:`fit_rigid_track`); ``radar_paths``: each actor's path is then
+    moved along the line of sight to its radar velocities (:func:`radar_corrected_shift`)."""
     dynamic = model.dynamic
     means = dynamic.params["means"].detach()
     positions, opacities = [], []
@@ -135,6 +216,12 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     for a, members in enumerate(groups):
         pivot, yaw, shift, canonical = fit_rigid_track(positions[members], opacities[members],
                                                        np.asarray(key_times) if extrapolate else None)
+        if radar_paths is not None:
+            velocity, std = radar_paths.velocities[a]
+            shift = radar_corrected_shift(pivot, shift, radar_paths.centres, velocity, std, radar_paths.seconds)
+            if extrapolate:
+                yaw, shift = extrapolate_ends(yaw, shift, np.asarray(key_times, dtype=np.float64),
+                                              *born_span(opacities[members]))
         index = torch.as_tensor(members, dtype=torch.long, device=means.device)
         actor[index] = float(a)
         start[index] = torch.as_tensor(canonical, dtype=means.dtype, device=means.device)
@@ -197,12 +284,14 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
                        optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
-                       extrapolate: bool = False) -> str:
+                       extrapolate: bool = False, radar_path: bool = False) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
     them) and, for those moving at least ``min_motion`` x the image width a frame in the image
     (:func:`actor_image_motion`), move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
-    "actors"; ``extrapolate`` as :func:`rigid_actor_motion`. Returns the line to log."""
+    "actors"; ``extrapolate`` as :func:`rigid_actor_motion`; ``radar_path`` (with radar objects): each actor's
+    path is fitted to the velocities of the radar objects it holds (:func:`radar_corrected_shift`). Returns the
+    line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -217,7 +306,13 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
         if not actors:
             return (f"rigid actors: none of {found} actors moves {threshold:.1f} px a frame in the image; the "
                     f"field keeps every dynamic Gaussian{without}")
-    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times, extrapolate)
+    paths = None
+    if radar_path and radar_objects is not None:
+        frames = np.array([int(np.argmin(np.abs(normalized_times(scene) - t))) for t in key_times])
+        stamps = np.array([scene.frames[f].timestamp for f in frames], dtype=np.float64)
+        centres = camera_centres(np.stack([scene.world_to_camera(int(f)) for f in frames]))
+        paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors], centres, stamps)
+    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times, extrapolate, paths)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     return (f"rigid actors: {len(actors)} of {found} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "

@@ -259,7 +259,7 @@ class Trainer:
         key_times = self.times[np.asarray(self.train_indices)]
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
                                     self.config.rigid_actors_lr, self.config.rigid_actors_min_motion,
-                                    self.config.rigid_actors_extrapolate))
+                                    self.config.rigid_actors_extrapolate, self.config.rigid_actors_radar_path))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
