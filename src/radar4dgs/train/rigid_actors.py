@@ -308,7 +308,8 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
                     f"field keeps every dynamic Gaussian{without}")
     paths = None
     if radar_path and radar_objects is not None:
-        frames = np.array([int(np.argmin(np.abs(normalized_times(scene) - t))) for t in key_times])
+        times = normalized_times(scene)
+        frames = np.array([int(np.argmin(np.abs(times - t))) for t in key_times])
         stamps = np.array([scene.frames[f].timestamp for f in frames], dtype=np.float64)
         centres = camera_centres(np.stack([scene.world_to_camera(int(f)) for f in frames]))
         paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors], centres, stamps)
