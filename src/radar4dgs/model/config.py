@@ -351,7 +351,7 @@ class TrainConfig:
     rigid_actors_smoothness: float = 0.0
     # Weight of the rigid actors' heading term (ActorMotion.heading_mismatch: each actor turns as its path turns,
     # rad²). Without it nothing ties an actor's yaw to where it goes: straight cars were fitted turning by 50-110°.
-    # Off: at 100 it halved the yaw error and moved PSNR* +0.04 dB over ten strict tuning grid runs (needed +0.1).
+    # Off: at 100 it halved a cut-in car's yaw error and moved PSNR* +0.04 dB over ten strict tuning grid runs.
     rigid_actors_heading: float = 0.0
     # Only actors whose centroid moves at least this far in the image from one frame to the next (90th
     # percentile over their consecutive visible frames; a fraction of the image width) move rigidly; the field
