@@ -14,6 +14,7 @@ from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.train.optimizers import adam
 from radar4dgs.train.rigid_actors import (
     actor_image_motion,
+    body_attachments,
     born_span,
     extrapolate_ends,
     fit_rigid_track,
@@ -256,3 +257,41 @@ def test_radar_key_velocities_trust_held_objects_with_returns_and_a_tight_veloci
     np.testing.assert_allclose(velocity[[0, 3]], [[4.0, 1.0], [6.0, 1.0]])
     assert np.isnan(velocity[[1, 2]]).all() and np.isnan(std[[1, 2]]).all()
     np.testing.assert_allclose(std[[0, 3]], [0.3, 0.2])
+
+
+def test_a_free_copy_joins_the_body_covering_it_in_its_own_frame_at_its_own_depth():
+    # Camera at the origin looking along +z (K_TEST: 100 px focal, so 1 px is 0.1 m at 10 m); two keys.
+    cameras = np.stack([np.eye(4), np.eye(4)])
+    near = np.array([[0.0, 0.0, 10.0], [0.5, 0.0, 10.0]])  # body 0: 10 m ahead, 0 and 5 px right of centre
+    far = np.array([[0.0, 0.0, 40.0]])  # body 1: behind it on the same line of sight
+    bodies = [np.stack([near, near + [0.0, 9.0, 0.0]]), np.stack([far, far])]  # body 0 moves 90 px down at key 1
+    points = np.array([[0.01, 0.0, 10.5],   # 0.1 px from body 0, 5 % deeper: body 0
+                       [0.0, 0.0, 42.0],    # on both bodies in the image; depth says body 1
+                       [0.0, 0.0, 20.0],    # on both in the image, at neither's depth
+                       [0.25, 0.0, 10.0],   # 2.5 px from both of body 0's points, radius 2: none
+                       [0.42, 0.0, 10.0],   # 0.8 px from body 0's second point
+                       [0.0, 0.0, 10.0]])   # seen at key 1, where body 0 has moved away: none
+    keys = np.array([0, 0, 0, 0, 0, 1])
+    joins = body_attachments(points, keys, bodies, cameras, K_TEST, radius=2.0)
+    np.testing.assert_array_equal(joins, [0, 1, -1, -1, 0, -1])
+    assert (body_attachments(points, keys, [], cameras, K_TEST, 2.0) == -1).all()
+
+
+def test_free_copies_of_a_moving_body_join_its_actor_and_keep_their_positions():
+    model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]), n=200)
+    times = np.linspace(0.0, 1.0, 11)
+    keys = times[1:-1:2]
+    before = [model.set_at("dynamic", t)["means"].detach().clone() for t in times]
+    # A camera at the origin looking along +x (world y to the left, z up), the same at every key.
+    look_along_x = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    cameras = np.repeat(look_along_x[None], len(keys), axis=0)
+    half = groups[0][:100]  # the discovery linked half of the first body; its other half is left to the field
+    optimizer = adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)
+    motion, actor, start = rigid_actor_motion(model, [half, groups[1]], keys, attach=(cameras, K_TEST, 20.0))
+    np.testing.assert_array_equal(actor.numpy()[groups[0]], 0)
+    np.testing.assert_array_equal(actor.numpy()[groups[1]], 1)
+    motion_without, actor_without, _ = rigid_actor_motion(model, [half, groups[1]], keys)
+    assert (actor_without.numpy()[groups[0][100:]] == -1).all()
+    rigid_members(model, motion, actor, start, optimizer)
+    for t, expected in zip(times, before, strict=True):
+        torch.testing.assert_close(model.set_at("dynamic", t)["means"], expected, atol=1e-6, rtol=0)

@@ -373,6 +373,9 @@ class TrainConfig:
     # along it, and far crossing cars' actors were metres off there (their paths turning 50 degrees on straight roads).
     # Off: +0.02 dB of PSNR* over ten strict tuning grid runs (benchmarks/results/rigid-actor-priors.json).
     rigid_actors_radar_path: bool = False
+    # At the switch, dynamic Gaussians the discovery left to the field join an actor whose fitted body covers them in
+    # their own frame within this many pixels (train.rigid_actors.attach_free); 0 = off.
+    rigid_actors_attach_px: float = 0.0
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).

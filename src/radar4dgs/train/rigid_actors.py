@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from radar4dgs.actors.config import ActorConfig
 from radar4dgs.actors.discover import discover_actors
 from radar4dgs.depth.geometry import project
 from radar4dgs.io.scene import normalized_times
@@ -47,7 +48,7 @@ def rigid_step(before: np.ndarray, after: np.ndarray, weights: np.ndarray,
 
 
 def turn_about_z(offset: np.ndarray, yaw: float) -> np.ndarray:
-    """(..., 3) offsets turned by ``yaw`` radians about z."""
+    """(..., 3) offsets turned by ``yaw`` radians about z (a float, or an array broadcast with ``offset[..., 0]``)."""
     c, s = np.cos(yaw), np.sin(yaw)
     return np.stack([c * offset[..., 0] - s * offset[..., 1], s * offset[..., 0] + c * offset[..., 1],
                      offset[..., 2]], axis=-1)
@@ -193,23 +194,74 @@ def radar_corrected_shift(pivot: np.ndarray, shift: np.ndarray, centres: np.ndar
 
 
 @torch.no_grad()
+def key_positions(model: SceneModel, key_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dynamic Gaussians' (N, K, 3) positions and (N, K) opacities (life span included) at (K,) ``key_times``."""
+    positions, opacities = [], []
+    with torch.no_grad():
+        for t in key_times:
+            g = model.set_at("dynamic", float(t))
+            positions.append(g["means"].double().cpu().numpy())
+            opacities.append(g["opacities"].double().cpu().numpy())
+    return np.stack(positions, axis=1), np.stack(opacities, axis=1)
+
+
+# A free copy joins a body whose projection lies within the attach radius of it only when its depth is within this
+# share of that body point's: a car 15 m ahead overlaps a far one in the image, and the depth maps of a far car are
+# off by several percent, not tens.
+ATTACH_DEPTH_SHARE = 0.2
+
+
+def body_attachments(points: np.ndarray, keys: np.ndarray, bodies: list[np.ndarray], world_to_camera: np.ndarray,
+                     K: np.ndarray, radius: float) -> np.ndarray:
+    """(M,) index of the body each of M free Gaussians joins, -1 for none.
+
+    Each free Gaussian is seen at its own key ``keys`` (M,), at (M, 3) world ``points`` there; body ``a`` is
+    (K, n_a, 3): its members at every key. A Gaussian joins the body with a member projecting within ``radius``
+    px of it in that key's camera (``world_to_camera`` (K, 4, 4), intrinsics ``K``) at a depth within
+    :data:`ATTACH_DEPTH_SHARE` of its own; of several, the nearest in the image. Compared in the image, not in 3-D,
+    because the depth maps place one frame's copy of a far car metres off another's along the line of sight."""
+    from scipy.spatial import cKDTree
+
+    joins = np.full(len(points), -1, dtype=np.int64)
+    if not bodies or not len(points):
+        return joins
+    for k in np.unique(keys):
+        free = np.flatnonzero(keys == k)
+        body = np.concatenate([b[k] for b in bodies])
+        label = np.concatenate([np.full(b.shape[1], a) for a, b in enumerate(bodies)])
+        cam = world_to_camera[k]
+        uv_b, z_b = project(K, body @ cam[:3, :3].T + cam[:3, 3])
+        uv_f, z_f = project(K, points[free] @ cam[:3, :3].T + cam[:3, 3])
+        front = z_b > 0.5
+        if not front.any():
+            continue
+        uv_b, z_b, label = uv_b[front], z_b[front], label[front]
+        near = cKDTree(uv_b).query_ball_point(np.where(np.isfinite(uv_f), uv_f, -1e9), r=radius)
+        for i, candidates in enumerate(near):
+            if z_f[i] <= 0.5 or not candidates:
+                continue
+            c = np.asarray(candidates)
+            c = c[np.abs(z_b[c] - z_f[i]) <= ATTACH_DEPTH_SHARE * z_b[c]]
+            if len(c):
+                joins[free[i]] = label[c[np.argmin(np.linalg.norm(uv_b[c] - uv_f[i], axis=1))]]
+    return joins
+
+
 def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray,
-                       extrapolate: bool = False, radar_paths: RadarPaths | None = None
+                       extrapolate: bool = False, radar_paths: RadarPaths | None = None,
+                       attach: tuple[np.ndarray, np.ndarray, float] | None = None
                        ) -> tuple[ActorMotion, Tensor, Tensor]:
     """The initial :class:`ActorMotion` of ``groups`` (one (k,) index array into the dynamic set per
     actor) at (K,) normalised ``key_times``, the (N,) actor index of every dynamic Gaussian (-1 for
     none) and the (N, 3) means they start from (reference-time positions for the actors', the
     canonical ones for the rest); ``extrapolate``: each actor's path outside the keys it was born at
     goes on at constant velocity (:func:`fit_rigid_track`); ``radar_paths``: each actor's path is then
-    moved along the line of sight to its radar velocities (:func:`radar_corrected_shift`)."""
+    moved along the line of sight to its radar velocities (:func:`radar_corrected_shift`); ``attach`` = (the keys'
+    (K, 4, 4) world-to-camera, intrinsics (3, 3), radius px): the Gaussians of no group join the actor whose fitted
+    body covers them at their own key (:func:`body_attachments`)."""
     dynamic = model.dynamic
     means = dynamic.params["means"].detach()
-    positions, opacities = [], []
-    for t in key_times:
-        g = model.set_at("dynamic", float(t))
-        positions.append(g["means"].double().cpu().numpy())
-        opacities.append(g["opacities"].double().cpu().numpy())
-    positions, opacities = np.stack(positions, axis=1), np.stack(opacities, axis=1)
+    positions, opacities = key_positions(model, key_times)
     actor = torch.full((len(dynamic),), -1.0, dtype=means.dtype, device=means.device)
     start = means.clone()
     pivots, yaws, shifts = [], [], []
@@ -228,10 +280,41 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
         pivots.append(pivot)
         yaws.append(yaw)
         shifts.append(shift)
+    if attach is not None and groups:
+        attach_free(positions, opacities, groups, actor, start, np.array(pivots), np.array(yaws), np.array(shifts),
+                    *attach)
     kw = {"dtype": means.dtype, "device": means.device}
     motion = ActorMotion(torch.as_tensor(np.asarray(key_times), **kw), torch.as_tensor(np.array(pivots), **kw),
                          torch.as_tensor(np.array(yaws), **kw), torch.as_tensor(np.array(shifts), **kw))
     return motion, actor, start
+
+
+def attach_free(positions: np.ndarray, opacities: np.ndarray, groups: list[np.ndarray], actor: Tensor, start: Tensor,
+                pivots: np.ndarray, yaws: np.ndarray, shifts: np.ndarray, world_to_camera: np.ndarray, K: np.ndarray,
+                radius: float) -> None:
+    """Give the Gaussians of no group that render (opacity at least ActorConfig.min_opacity at some key) to the
+    actor whose body covers them at their own key (:func:`body_attachments`), in place: (N,) ``actor`` and their
+    (N, 3) reference-time ``start``. The field moves a far, fast car's copies apart away from their own frames, so
+    the discovery links few of them; each copy is right at its own frame, where the images place it. Bodies are the
+    groups' members at every key under the fitted motions: ``pivots`` (A, 3), ``yaws`` (A, K), ``shifts`` (A, K, 3),
+    from (N, K, 3) ``positions`` and (N, K) ``opacities`` at the keys."""
+    rendering = opacities.max(axis=1) >= ActorConfig().min_opacity
+    free = np.flatnonzero((actor.cpu().numpy() < 0) & rendering)
+    if not len(free):
+        return
+    own = np.argmax(opacities[free], axis=1)
+    points = positions[free, own]
+    bodies = []
+    for a, members in enumerate(groups):
+        c = start[torch.as_tensor(members[rendering[members]], dtype=torch.long)].double().cpu().numpy()
+        offsets = np.broadcast_to(c - pivots[a], (yaws.shape[1],) + c.shape)
+        bodies.append(turn_about_z(offsets, yaws[a][:, None]) + pivots[a] + shifts[a][:, None])
+    joins = body_attachments(points, own, bodies, world_to_camera, K, radius)
+    for j in np.flatnonzero(joins >= 0):
+        a, k = joins[j], own[j]
+        reference = turn_about_z(points[j] - pivots[a] - shifts[a, k], -yaws[a, k]) + pivots[a]
+        actor[free[j]] = float(a)
+        start[free[j]] = torch.as_tensor(reference, dtype=start.dtype, device=start.device)
 
 
 def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: Tensor,
@@ -284,14 +367,15 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
                        optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
-                       extrapolate: bool = False, radar_path: bool = False) -> str:
+                       extrapolate: bool = False, radar_path: bool = False, attach_px: float = 0.0) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
     them) and, for those moving at least ``min_motion`` x the image width a frame in the image
     (:func:`actor_image_motion`), move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
     "actors"; ``extrapolate`` as :func:`rigid_actor_motion`; ``radar_path`` (with radar objects): each actor's
-    path is fitted to the velocities of the radar objects it holds (:func:`radar_corrected_shift`). Returns the
-    line to log."""
+    path is fitted to the velocities of the radar objects it holds (:func:`radar_corrected_shift`); ``attach_px``
+    > 0: the Gaussians left to the field join an actor covering them in their own frame within that many pixels
+    (:func:`attach_free`). Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -306,15 +390,21 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
         if not actors:
             return (f"rigid actors: none of {found} actors moves {threshold:.1f} px a frame in the image; the "
                     f"field keeps every dynamic Gaussian{without}")
-    paths = None
-    if radar_path and radar_objects is not None:
+    paths, attach = None, None
+    if attach_px > 0 or (radar_path and radar_objects is not None):
         times = normalized_times(scene)
         frames = np.array([int(np.argmin(np.abs(times - t))) for t in key_times])
+        cameras = np.stack([scene.world_to_camera(int(f)) for f in frames])
+    if attach_px > 0:
+        attach = (cameras, np.asarray(scene.camera.K, dtype=np.float64), attach_px)
+    if radar_path and radar_objects is not None:
         stamps = np.array([scene.frames[f].timestamp for f in frames], dtype=np.float64)
-        centres = camera_centres(np.stack([scene.world_to_camera(int(f)) for f in frames]))
-        paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors], centres, stamps)
-    motion, actor, start = rigid_actor_motion(model, [a.gaussians for a in actors], key_times, extrapolate, paths)
+        paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors],
+                           camera_centres(cameras), stamps)
+    groups = [a.gaussians for a in actors]
+    motion, actor, start = rigid_actor_motion(model, groups, key_times, extrapolate, paths, attach)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
+    joined = int((actor >= 0).sum()) - sum(len(g) for g in groups)
     return (f"rigid actors: {len(actors)} of {found} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
-            f"Gaussians move rigidly{without}")
+            f"Gaussians move rigidly{f' ({joined} joined in their own frame)' if attach else ''}{without}")

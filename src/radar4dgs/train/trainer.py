@@ -257,9 +257,10 @@ class Trainer:
         own from now on (``rigid_actors_at``; train.rigid_actors)."""
         self._rigid_actors_tried = True
         key_times = self.times[np.asarray(self.train_indices)]
+        c = self.config
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
-                                    self.config.rigid_actors_lr, self.config.rigid_actors_min_motion,
-                                    self.config.rigid_actors_extrapolate, self.config.rigid_actors_radar_path))
+                                    c.rigid_actors_lr, c.rigid_actors_min_motion, c.rigid_actors_extrapolate,
+                                    c.rigid_actors_radar_path, c.rigid_actors_attach_px))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
