@@ -45,7 +45,7 @@ def test_train_preset_keeps_its_stage_boundaries_under_an_iteration_override():
     assert (short.optim.stage2_start, short.optim.stage3_start) == (full.optim.stage2_start, full.optim.stage3_start)
     assert full.optim.stage2_start != TrainConfig().optim.stage2_start
     # small moves discovered actors rigidly from 30 % of the run; the bare defaults (and tiny) keep the field
-    assert (full.rigid_actors_at, full.rigid_actors_smoothness) == (0.3, 1.0)
+    assert (full.rigid_actors_at, full.rigid_actors_smoothness, full.rigid_actors_attach) == (0.3, 1.0, 0.0125)
     assert (short.rigid_actors_at, preset(TrainConfig, "tiny").rigid_actors_at, TrainConfig().rigid_actors_at) == \
         (0.3, 0.0, 0.0)
 

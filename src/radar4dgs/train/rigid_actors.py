@@ -367,15 +367,15 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.ndarray,
                        optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
-                       extrapolate: bool = False, radar_path: bool = False, attach_px: float = 0.0) -> str:
+                       extrapolate: bool = False, radar_path: bool = False, attach: float = 0.0) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has
     them) and, for those moving at least ``min_motion`` x the image width a frame in the image
     (:func:`actor_image_motion`), move each rigidly from now on: the motion installed in ``model``
     at (K,) normalised ``key_times`` and its Adam (rate ``lr``) added to ``optimizers`` as
     "actors"; ``extrapolate`` as :func:`rigid_actor_motion`; ``radar_path`` (with radar objects): each actor's
-    path is fitted to the velocities of the radar objects it holds (:func:`radar_corrected_shift`); ``attach_px``
-    > 0: the Gaussians left to the field join an actor covering them in their own frame within that many pixels
-    (:func:`attach_free`). Returns the line to log."""
+    path is fitted to the velocities of the radar objects it holds (:func:`radar_corrected_shift`); ``attach`` > 0:
+    the Gaussians left to the field join an actor covering them in their own frame within that fraction of the image
+    width (:func:`attach_free`). Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -390,21 +390,21 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_times: np.n
         if not actors:
             return (f"rigid actors: none of {found} actors moves {threshold:.1f} px a frame in the image; the "
                     f"field keeps every dynamic Gaussian{without}")
-    paths, attach = None, None
-    if attach_px > 0 or (radar_path and radar_objects is not None):
+    paths, bodies = None, None
+    if attach > 0 or (radar_path and radar_objects is not None):
         times = normalized_times(scene)
         frames = np.array([int(np.argmin(np.abs(times - t))) for t in key_times])
         cameras = np.stack([scene.world_to_camera(int(f)) for f in frames])
-    if attach_px > 0:
-        attach = (cameras, np.asarray(scene.camera.K, dtype=np.float64), attach_px)
+    if attach > 0:
+        bodies = (cameras, np.asarray(scene.camera.K, dtype=np.float64), attach * scene.camera.width)
     if radar_path and radar_objects is not None:
         stamps = np.array([scene.frames[f].timestamp for f in frames], dtype=np.float64)
         paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors],
                            camera_centres(cameras), stamps)
     groups = [a.gaussians for a in actors]
-    motion, actor, start = rigid_actor_motion(model, groups, key_times, extrapolate, paths, attach)
+    motion, actor, start = rigid_actor_motion(model, groups, key_times, extrapolate, paths, bodies)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     joined = int((actor >= 0).sum()) - sum(len(g) for g in groups)
     return (f"rigid actors: {len(actors)} of {found} actors, {int((actor >= 0).sum())} of {len(actor)} dynamic "
-            f"Gaussians move rigidly{f' ({joined} joined in their own frame)' if attach else ''}{without}")
+            f"Gaussians move rigidly{f' ({joined} joined in their own frame)' if bodies else ''}{without}")

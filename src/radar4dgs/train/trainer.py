@@ -260,7 +260,7 @@ class Trainer:
         c = self.config
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_times, state.optimizers,
                                     c.rigid_actors_lr, c.rigid_actors_min_motion, c.rigid_actors_extrapolate,
-                                    c.rigid_actors_radar_path, c.rigid_actors_attach_px))
+                                    c.rigid_actors_radar_path, c.rigid_actors_attach))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
