@@ -18,7 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from radar4dgs.actors.config import ActorConfig
-from radar4dgs.actors.discover import discover_actors
+from radar4dgs.actors.discover import discover_actors, dynamic_trajectories
 from radar4dgs.depth.geometry import project
 from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.actor_motion import ActorMotion
@@ -193,18 +193,6 @@ def radar_corrected_shift(pivot: np.ndarray, shift: np.ndarray, centres: np.ndar
     return out
 
 
-@torch.no_grad()
-def key_positions(model: SceneModel, key_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The dynamic Gaussians' (N, K, 3) positions and (N, K) opacities (life span included) at (K,) ``key_times``."""
-    positions, opacities = [], []
-    with torch.no_grad():
-        for t in key_times:
-            g = model.set_at("dynamic", float(t))
-            positions.append(g["means"].double().cpu().numpy())
-            opacities.append(g["opacities"].double().cpu().numpy())
-    return np.stack(positions, axis=1), np.stack(opacities, axis=1)
-
-
 # A free copy joins a body whose projection lies within the attach radius of it only when its depth is within this
 # share of that body point's: a car 15 m ahead overlaps a far one in the image, and the depth maps of a far car are
 # off by several percent, not tens.
@@ -247,6 +235,7 @@ def body_attachments(points: np.ndarray, keys: np.ndarray, bodies: list[np.ndarr
     return joins
 
 
+@torch.no_grad()
 def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray,
                        extrapolate: bool = False, radar_paths: RadarPaths | None = None,
                        attach: tuple[np.ndarray, np.ndarray, float] | None = None
@@ -261,7 +250,7 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     body covers them at their own key (:func:`body_attachments`)."""
     dynamic = model.dynamic
     means = dynamic.params["means"].detach()
-    positions, opacities = key_positions(model, key_times)
+    positions, opacities = dynamic_trajectories(model, key_times)
     actor = torch.full((len(dynamic),), -1.0, dtype=means.dtype, device=means.device)
     start = means.clone()
     pivots, yaws, shifts = [], [], []
