@@ -5,7 +5,8 @@ At the switch the dynamic Gaussians are grouped into actors (:func:`radar4dgs.ac
 as ``radar4dgs actors`` does after training). For each actor the field's positions of its Gaussians
 at the key times give the initial rigid motion (:func:`fit_rigid_track`: weighted 2-D Procrustes
 steps from key to key), and its Gaussians' means become their positions at the actor's reference
-time.
+time. Optionally (:func:`attach_free`) the Gaussians the discovery left to the field join the actor whose
+fitted body covers them in their own frame.
 """
 
 from __future__ import annotations
@@ -194,8 +195,8 @@ def radar_corrected_shift(pivot: np.ndarray, shift: np.ndarray, centres: np.ndar
 
 
 # A free copy joins a body whose projection lies within the attach radius of it only when its depth is within this
-# share of that body point's: a car 15 m ahead overlaps a far one in the image, and the depth maps of a far car are
-# off by several percent, not tens.
+# share of that body point's: a car 15 m ahead overlaps a far one in the image, while one far car's copies from
+# different frames lie metres apart along the line of sight (the depth maps' error at 40-60 m).
 ATTACH_DEPTH_SHARE = 0.2
 
 
