@@ -214,17 +214,17 @@ def body_attachments(points: np.ndarray, keys: np.ndarray, bodies: list[np.ndarr
     joins = np.full(len(points), -1, dtype=np.int64)
     if not bodies or not len(points):
         return joins
+    labels = np.concatenate([np.full(b.shape[1], a) for a, b in enumerate(bodies)])
     for k in np.unique(keys):
         free = np.flatnonzero(keys == k)
         body = np.concatenate([b[k] for b in bodies])
-        label = np.concatenate([np.full(b.shape[1], a) for a, b in enumerate(bodies)])
         cam = world_to_camera[k]
         uv_b, z_b = project(K, body @ cam[:3, :3].T + cam[:3, 3])
         uv_f, z_f = project(K, points[free] @ cam[:3, :3].T + cam[:3, 3])
         front = z_b > 0.5
         if not front.any():
             continue
-        uv_b, z_b, label = uv_b[front], z_b[front], label[front]
+        uv_b, z_b, label = uv_b[front], z_b[front], labels[front]
         near = cKDTree(uv_b).query_ball_point(np.where(np.isfinite(uv_f), uv_f, -1e9), r=radius)
         for i, candidates in enumerate(near):
             if z_f[i] <= 0.5 or not candidates:
