@@ -194,6 +194,10 @@ def radar_corrected_shift(pivot: np.ndarray, shift: np.ndarray, centres: np.ndar
     return out
 
 
+# Points nearer the camera plane than this (m) are left out of image-space comparisons: their projections run far
+# outside the image and say nothing about where an actor is seen.
+IN_FRONT_M = 0.5
+
 # A free copy joins a body whose projection lies within the attach radius of it only when its depth is within this
 # share of that body point's: a car 15 m ahead overlaps a far one in the image, while one far car's copies from
 # different frames lie metres apart along the line of sight (the depth maps' error at 40-60 m).
@@ -221,13 +225,13 @@ def body_attachments(points: np.ndarray, keys: np.ndarray, bodies: list[np.ndarr
         cam = world_to_camera[k]
         uv_b, z_b = project(K, body @ cam[:3, :3].T + cam[:3, 3])
         uv_f, z_f = project(K, points[free] @ cam[:3, :3].T + cam[:3, 3])
-        front = z_b > 0.5
+        front = z_b > IN_FRONT_M
         if not front.any():
             continue
         uv_b, z_b, label = uv_b[front], z_b[front], labels[front]
         near = cKDTree(uv_b).query_ball_point(np.where(np.isfinite(uv_f), uv_f, -1e9), r=radius)
         for i, candidates in enumerate(near):
-            if z_f[i] <= 0.5 or not candidates:
+            if z_f[i] <= IN_FRONT_M or not candidates:
                 continue
             c = np.asarray(candidates)
             c = c[np.abs(z_b[c] - z_f[i]) <= ATTACH_DEPTH_SHARE * z_b[c]]
@@ -334,8 +338,8 @@ def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: 
 def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camera: np.ndarray,
                        K: np.ndarray) -> float:
     """90th percentile (px) of how far an actor's centroid moves in the image from a visible frame to
-    the next one (consecutive frames only; a frame with the centroid less than 0.5 m in front of
-    the camera is skipped), each frame seen by its own camera; 0 when no pair is left.
+    the next one (consecutive frames only; a frame with the centroid less than :data:`IN_FRONT_M` in front
+    of the camera is skipped), each frame seen by its own camera; 0 when no pair is left.
 
     Args:
         centroids: (F, 3) world centroid per frame. frames: (V,) visible frame indices, ascending.
@@ -349,7 +353,7 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
     cam = np.einsum("fij,fj->fi", world_to_camera[both, :3, :3], centroids[both]) + world_to_camera[both, :3, 3]
     uv, z = project(np.asarray(K, dtype=np.float64), cam)
     n = len(pairs)
-    keep = (z[:n] > 0.5) & (z[n:] > 0.5)
+    keep = (z[:n] > IN_FRONT_M) & (z[n:] > IN_FRONT_M)
     if not keep.any():
         return 0.0
     return float(np.percentile(np.linalg.norm(uv[n:] - uv[:n], axis=1)[keep], 90))
