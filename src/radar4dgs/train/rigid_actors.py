@@ -55,6 +55,13 @@ def turn_about_z(offset: np.ndarray, yaw: float) -> np.ndarray:
                      offset[..., 2]], axis=-1)
 
 
+def reference_positions(points: np.ndarray, pivot: np.ndarray, yaw: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(..., 3) world ``points``, each seen at its own key, brought back to the actor's reference time: the inverse
+    of ``T_k(c) = Rz(yaw_k) (c - pivot) + pivot + shift_k`` with that key's ``yaw`` (...) and ``shift`` (..., 3) and
+    the ``pivot`` ((3,) or (..., 3))."""
+    return turn_about_z(points - pivot - shift, -yaw) + pivot
+
+
 # An actor is born at a key when the Gaussians whose opacity peaks there hold at least this share of the
 # opacity mass of its largest such key (a few stray copies elsewhere do not count).
 BORN_SHARE = 0.1
@@ -114,7 +121,7 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndar
     if times is not None:
         yaw, shift = extrapolate_ends(yaw, shift, np.asarray(times, dtype=np.float64), *born_span(opacities))
     own = np.argmax(opacities, axis=1)
-    canonical = turn_about_z(positions[np.arange(len(own)), own] - pivot - shift[own], -yaw[own]) + pivot
+    canonical = reference_positions(positions[np.arange(len(own)), own], pivot, yaw[own], shift[own])
     return pivot, yaw, shift, canonical
 
 
@@ -304,11 +311,12 @@ def attach_free(positions: np.ndarray, opacities: np.ndarray, groups: list[np.nd
         offsets = np.broadcast_to(c - pivots[a], (yaws.shape[1],) + c.shape)
         bodies.append(turn_about_z(offsets, yaws[a][:, None]) + pivots[a] + shifts[a][:, None])
     joins = body_attachments(points, own, bodies, world_to_camera, K, radius)
-    for j in np.flatnonzero(joins >= 0):
-        a, k = joins[j], own[j]
-        reference = turn_about_z(points[j] - pivots[a] - shifts[a, k], -yaws[a, k]) + pivots[a]
-        actor[free[j]] = float(a)
-        start[free[j]] = torch.as_tensor(reference, dtype=start.dtype, device=start.device)
+    joined = np.flatnonzero(joins >= 0)
+    a, k = joins[joined], own[joined]
+    index = torch.as_tensor(free[joined], dtype=torch.long, device=actor.device)
+    actor[index] = torch.as_tensor(a, dtype=actor.dtype, device=actor.device)
+    start[index] = torch.as_tensor(reference_positions(points[joined], pivots[a], yaws[a, k], shifts[a, k]),
+                                   dtype=start.dtype, device=start.device)
 
 
 def rigid_members(model: SceneModel, motion: ActorMotion, actor: Tensor, start: Tensor,
