@@ -20,7 +20,8 @@ def test_moving_pixel_error_is_the_mean_absolute_error_over_the_mask():
     rng = np.random.default_rng(0)
     rgb, image = rng.uniform(-0.2, 1.2, (2, 6, 5, 3))
     mask = rng.uniform(size=(6, 5)) < 0.4
-    naive = np.mean([np.abs(np.clip(rgb[r, c], 0, 1) - image[r, c]).mean() for r, c in zip(*np.nonzero(mask))])
+    rows, cols = np.nonzero(mask)
+    naive = np.mean([np.abs(np.clip(rgb[r, c], 0, 1) - image[r, c]).mean() for r, c in zip(rows, cols, strict=True)])
     error = moving_pixel_error(torch.as_tensor(rgb), torch.as_tensor(image), torch.as_tensor(mask))
     assert error == pytest.approx(naive, rel=1e-12)
     assert moving_pixel_error(torch.as_tensor(rgb), torch.as_tensor(image), torch.zeros(6, 5, dtype=torch.bool)) == 0
