@@ -381,9 +381,6 @@ class TrainConfig:
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).
     static_outside_masks: bool = False
-    # Ours, stage 3: from this fraction of the run on, every other iteration trains only the moving part, on a frame
-    # drawn by the square of its moving pixels' error at the switch (train.focus); 0 = off.
-    focus_at: float = 0.0
     seed: int = 0  # of the initial subsampling, camera order, dropout and motion minibatches
     resolution_scale: float = 1.0  # render and supervise at this fraction of the scene resolution (1 = full)
     # Coarse-to-fine: iterations before coarse_until (fraction of the run) render at
@@ -475,13 +472,15 @@ class TrainConfig:
                              f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        for name in ("rigid_actors_smoothness", "rigid_actors_heading", "rigid_actors_min_motion",
-                     "dynamic_lifespan_reference_px"):
+        for name in ("rigid_actors_smoothness", "rigid_actors_heading"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("rigid_actors_at", "focus_at"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"{name} must lie in [0, 1) (0 = never), got {getattr(self, name)}")
+        if self.rigid_actors_min_motion < 0:
+            raise ValueError(f"rigid_actors_min_motion must be >= 0, got {self.rigid_actors_min_motion}")
+        if not 0.0 <= self.rigid_actors_at < 1.0:
+            raise ValueError(f"rigid_actors_at must lie in [0, 1) (0 = never), got {self.rigid_actors_at}")
+        if self.dynamic_lifespan_reference_px < 0:
+            raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:
             raise ValueError(f"optim.dropout must lie in [0, 1), got {o.dropout}")
         for name in ("resolution_scale", "coarse_scale"):

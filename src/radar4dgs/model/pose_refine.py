@@ -27,7 +27,6 @@ lines, with Taylor expansions near zero so that values and gradients stay finite
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Mapping
 
 import numpy as np
@@ -266,20 +265,3 @@ def refinement_switches(pose_mode: str, appearance_mode: str, source: Mapping[st
     recorded = str(source.get("dataset", "")) != "synthetic"
     appearance = appearance_mode == "on" or (appearance_mode == "auto" and recorded)
     return poses, appearance
-
-
-def corrected_view(poses: PoseCorrections | None, row: int, view, directions: Tensor):
-    """``(view, directions)`` training row ``row`` renders: the recorded ``view`` and its (H, W, 3) world rays, or,
-    where the run refines ``poses``, the corrected (differentiable) pose and its turned rays."""
-    if poses is None:
-        return view, directions
-    recorded = torch.as_tensor(view.world_to_camera, dtype=poses.translation.dtype, device=poses.translation.device)
-    delta = poses.delta(row)
-    corrected = dataclasses.replace(view, world_to_camera=delta @ recorded)
-    return corrected, corrected_directions(directions, recorded, delta)
-
-
-def scene_trajectory_target(scene, indices) -> np.ndarray:
-    """:func:`trajectory_target` of the frames ``indices`` of ``scene`` (their timestamps and recorded poses)."""
-    return trajectory_target(np.array([scene.frames[i].timestamp for i in indices]),
-                             np.stack([scene.world_to_camera(i) for i in indices]))

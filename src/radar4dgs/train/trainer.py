@@ -17,6 +17,7 @@ Adam moments, densification statistics) continues exactly as the unbroken run wo
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,7 @@ from radar4dgs.metrics.image import psnr
 from radar4dgs.model.appearance import FrameAppearance
 from radar4dgs.model.config import TrainConfig
 from radar4dgs.model.gaussians import GaussianSet, backproject_frames, dynamic_cap_note
-from radar4dgs.model.pose_refine import PoseCorrections, corrected_view, refinement_switches, scene_trajectory_target
+from radar4dgs.model.pose_refine import PoseCorrections, corrected_directions, refinement_switches, trajectory_target
 from radar4dgs.model.run import (
     CHECKPOINT_DIR,
     CONFIG_FILE,
@@ -50,7 +51,6 @@ from radar4dgs.model.run_log import TrainLog, history_payload
 from radar4dgs.model.scene_model import SceneModel
 from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.radar.sync import prepared_synced_scene
-from radar4dgs.train import focus
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
 from radar4dgs.train.determinism import frame_order, step_generator
@@ -87,11 +87,19 @@ class TrainingError(RuntimeError):
     """A training run cannot go on (non-finite loss, inconsistent run folder)."""
 
 
+# --------------------------------------------------------------------------------------------
+# Pure pieces
+
+
 def check_finite(losses: dict[str, Tensor], step: int) -> None:
     bad = {name: float(v.detach()) for name, v in losses.items() if not torch.isfinite(v)}
     if bad:
         raise TrainingError(f"non-finite loss at iteration {step}: {bad}; the last checkpoint is kept "
                             f"(resume with --resume after changing the config)")
+
+
+# --------------------------------------------------------------------------------------------
+# The loop
 
 
 @dataclass
@@ -106,8 +114,6 @@ class RunState:
     # Pose corrections and per-frame colour transforms of the training frames (None = not refined).
     poses: PoseCorrections | None = None
     appearance: FrameAppearance | None = None
-    # (n,) how the focus steps draw the training frames, once measured (TrainConfig.focus_at; train.focus).
-    focus: np.ndarray | None = None
 
 
 class Trainer:
@@ -203,16 +209,22 @@ class Trainer:
         poses_on, appearance_on = refinement_switches(self.config.poses.refine, self.config.poses.appearance,
                                                       self.scene.source)
         n, saved = len(self.train_indices), saved or {}
-        if poses_on:  # corrections start on (and are pulled to) the smoothed trajectory with poses.smooth_trajectory
-            target = scene_trajectory_target(self.scene, self.train_indices) if self.config.poses.smooth_trajectory \
-                else None
+        if poses_on:
             state.poses = PoseCorrections.from_state(saved["poses"], self.device, self.dtype) \
-                if saved.get("poses") is not None else PoseCorrections(n, self.device, self.dtype, target)
+                if saved.get("poses") is not None else PoseCorrections(n, self.device, self.dtype, self._pose_target())
         if appearance_on:
             state.appearance = FrameAppearance.from_state(saved["appearance"], self.device, self.dtype) \
                 if saved.get("appearance") is not None else FrameAppearance(n, self.device, self.dtype)
         state.optimizers.update(make_refine_optimizers(state.poses, state.appearance, self.config))
         return state
+
+    def _pose_target(self) -> np.ndarray | None:
+        """(N, 6) where the training frames' pose corrections start and are pulled to: onto the
+        smoothed trajectory (``poses.smooth_trajectory``), else None (the recorded poses)."""
+        if not self.config.poses.smooth_trajectory:
+            return None
+        times = np.array([self.scene.frames[i].timestamp for i in self.train_indices])
+        return trajectory_target(times, np.stack([self.scene.world_to_camera(i) for i in self.train_indices]))
 
     def _start_dynamic(self, state: RunState) -> None:
         """Stage 2 begins: dynamic Gaussians into the canonical space of the current field."""
@@ -247,17 +259,15 @@ class Trainer:
         key_frames = np.asarray(self.train_indices)
         c = self.config
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_frames, self.times[key_frames],
-                                    state.optimizers,
-                                    c.rigid_actors_lr, c.rigid_actors_min_motion, c.rigid_actors_extrapolate,
-                                    c.rigid_actors_radar_path, c.rigid_actors_attach))
+                                    state.optimizers, c.rigid_actors_lr, c.rigid_actors_min_motion,
+                                    c.rigid_actors_extrapolate, c.rigid_actors_radar_path, c.rigid_actors_attach))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
         return {"step": state.step, "model": state.model.payload(),
                 "optimizers": {k: v.state_dict() for k, v in state.optimizers.items()},
                 "stats": {k: v.state_dict() for k, v in state.stats.items()},
-                "history": state.history, "config": to_dict(self.config), **self._refinement_payload(state),
-                "focus": None if state.focus is None else state.focus.tolist()}
+                "history": state.history, "config": to_dict(self.config), **self._refinement_payload(state)}
 
     @staticmethod
     def _refinement_payload(state: RunState) -> dict[str, Any]:
@@ -280,7 +290,6 @@ class Trainer:
         state = RunState(int(saved["step"]), model, {}, {}, list(saved.get("history", [])))
         state.optimizers.update(make_optimizers(model, self.config, self.extent))
         self._with_refinement(state, saved)
-        state.focus = None if saved.get("focus") is None else np.asarray(saved["focus"], dtype=np.float64)
         for name, optimizer in state.optimizers.items():
             optimizer.load_state_dict(saved["optimizers"][name])
         for name, stats in saved["stats"].items():
@@ -384,13 +393,10 @@ class Trainer:
         n = len(self.targets)
         targets = self.coarse_targets if step < config.coarse_until * config.optim.iterations else self.targets
         row = int(frame_order(config.seed, step // n, n)[step % n])
-        ours = config.method == "ours"
-        focus_step = ours and stage == 3 and focus.is_focus_step(config.focus_at, config.optim.iterations, step)
-        if focus_step:
-            row = focus.focus_row(config.seed, step, self._focus_weights(state))
         target = targets[row]
         generator = step_generator(config.seed, step)
         model = state.model
+        ours = config.method == "ours"
         with_dynamic = (ours and stage >= 2) or config.method == "bspline"
         keep, scale = None, 1.0
         if config.optim.dropout > 0 and step < config.optim.dropout_until * config.optim.iterations:
@@ -398,8 +404,8 @@ class Trainer:
                               generator=generator) >= config.optim.dropout
             keep = keep.to(self.device)
             scale = 1.0 / (1.0 - config.optim.dropout)
-        view, directions = corrected_view(state.poses, row, target.view, target.directions)
-        ignore_dynamic, detach_static = (False, True) if focus_step else image_phase(config, stage, step)
+        view, directions = self._camera(state, row, target)
+        ignore_dynamic, detach_static = image_phase(config, stage, step)
         render = model.render(view, config.raster, directions, keep, scale,
                               include_dynamic=with_dynamic, detach_static=detach_static)
         if state.appearance is not None:
@@ -440,18 +446,17 @@ class Trainer:
             if self.train_log is not None:
                 self.train_log.step(state.history, *self._counts(state))
 
-    def _focus_weights(self, state: RunState) -> np.ndarray:
-        """The focus steps' draw probabilities, measured on the first focus step (train.focus)."""
-        if state.focus is None:
-            def render_row(row: int) -> Tensor:
-                target = self.targets[row]
-                view, directions = corrected_view(state.poses, row, target.view, target.directions)
-                rgb = state.model.render(view, self.config.raster, directions)["rgb"]
-                return rgb if state.appearance is None else state.appearance(rgb, row)
-            errors = focus.measure_focus_errors(render_row, self.targets)
-            state.focus = focus.focus_weights(errors)
-            self.log(focus.focus_note(errors, state.focus, [str(i) for i in self.train_indices]))
-        return state.focus
+    @staticmethod
+    def _camera(state: RunState, row: int, target: FrameTargets):
+        """The view and world ray directions training row ``row`` renders: the recorded ones, or,
+        when the run refines poses, the corrected (differentiable) pose and its turned rays."""
+        if state.poses is None:
+            return target.view, target.directions
+        recorded = torch.as_tensor(target.view.world_to_camera, dtype=state.poses.translation.dtype,
+                                   device=state.poses.translation.device)
+        delta = state.poses.delta(row)
+        view = dataclasses.replace(target.view, world_to_camera=delta @ recorded)
+        return view, corrected_directions(target.directions, recorded, delta)
 
     def _densify(self, state: RunState, render: dict, stage: int, trainable: list[str],
                  generator: torch.Generator) -> None:
