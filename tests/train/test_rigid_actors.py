@@ -189,6 +189,7 @@ def test_only_actors_moving_far_enough_in_the_image_become_rigid(monkeypatch):
 
     class Scene:  # 100 px wide; the fast actor moves 10 px a frame, the other not at all
         camera = types.SimpleNamespace(K=K_TEST, width=100)
+        frames = [types.SimpleNamespace(timestamp=0.2 * i) for i in range(6)]
 
         def __len__(self):
             return frames
@@ -197,15 +198,13 @@ def test_only_actors_moving_far_enough_in_the_image_become_rigid(monkeypatch):
             return np.eye(4)
 
     optimizers = {"dynamic": adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)}
-    line = start_rigid_actors(model, Scene(), None, np.arange(5), np.linspace(0.1, 0.9, 5), optimizers, 0.002,
-                              min_motion=0.05)
+    line = start_rigid_actors(model, Scene(), None, np.arange(1, 6), optimizers, 0.002, min_motion=0.05)
     assert line.startswith("rigid actors: 1 of 2 actors")
     actor = model.dynamic.params["actor"].long()
     assert (actor[groups[0]] == 0).all() and (actor[groups[1]] == -1).all() and "actors" in optimizers
     model, groups = pvg_model(np.array([[8.0, 0.0, 0.0], [-3.0, 4.0, 0.0]]))
     optimizers = {"dynamic": adam(model.dynamic.param_groups({"means": 0.01, "colors": 0.01}), eps=1e-15)}
-    line = start_rigid_actors(model, Scene(), None, np.arange(5), np.linspace(0.1, 0.9, 5), optimizers, 0.002,
-                              min_motion=0.2)
+    line = start_rigid_actors(model, Scene(), None, np.arange(1, 6), optimizers, 0.002, min_motion=0.2)
     assert "none of 2 actors moves 20.0 px" in line and model.actor_motion is None and "actors" not in optimizers
 
 

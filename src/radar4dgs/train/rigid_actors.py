@@ -21,6 +21,7 @@ from torch import Tensor, nn
 from radar4dgs.actors.config import ActorConfig
 from radar4dgs.actors.discover import discover_actors, dynamic_trajectories
 from radar4dgs.depth.geometry import project
+from radar4dgs.io.scene import normalized_times
 from radar4dgs.model.actor_motion import ActorMotion
 from radar4dgs.model.pose_refine import camera_centres
 from radar4dgs.model.scene_model import SceneModel
@@ -366,17 +367,16 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
     return float(np.percentile(np.linalg.norm(uv[n:] - uv[:n], axis=1)[keep], 90))
 
 
-def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_frames: np.ndarray, key_times: np.ndarray,
+def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_frames: np.ndarray,
                        optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
                        extrapolate: bool = False, radar_path: bool = False, attach: float = 0.0) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has them) and, for those
     moving at least ``min_motion`` x the image width a frame in the image (:func:`actor_image_motion`), move each
-    rigidly from now on: the motion installed in ``model`` at the (K,) normalised ``key_times`` of the frames
-    ``key_frames`` (K,) and its Adam (rate ``lr``) added to ``optimizers`` as "actors"; ``extrapolate`` as
-    :func:`rigid_actor_motion`; ``radar_path`` (with radar objects): each actor's path is fitted to the velocities of
-    the radar objects it holds (:func:`radar_corrected_shift`); ``attach`` > 0: the Gaussians left to the field join
-    an actor covering them in their own frame within that fraction of the image width (:func:`attach_free`). Returns
-    the line to log."""
+    rigidly from now on: the motion installed in ``model`` at the normalised times of the (K,) frames ``key_frames``
+    and its Adam (rate ``lr``) added to ``optimizers`` as "actors"; ``extrapolate`` as :func:`rigid_actor_motion`;
+    ``radar_path`` (with radar objects): each actor's path is fitted to the velocities of the radar objects it holds
+    (:func:`radar_corrected_shift`); ``attach`` > 0: the Gaussians left to the field join an actor covering them in
+    their own frame within that fraction of the image width (:func:`attach_free`). Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -393,6 +393,7 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_frames: np.
                     f"field keeps every dynamic Gaussian{without}")
     paths, bodies = None, None
     frames = np.asarray(key_frames)
+    key_times = normalized_times(scene)[frames]
     if attach > 0 or (radar_path and radar_objects is not None):
         cameras = np.stack([scene.world_to_camera(int(f)) for f in frames])
     if attach > 0:

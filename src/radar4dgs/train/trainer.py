@@ -256,9 +256,8 @@ class Trainer:
         """The dynamic Gaussians grouped into actors, each actor's moved by a rigid motion of its
         own from now on (``rigid_actors_at``; train.rigid_actors)."""
         self._rigid_actors_tried = True
-        key_frames = np.asarray(self.train_indices)
         c = self.config
-        self.log(start_rigid_actors(state.model, self.scene, self.prepared, key_frames, self.times[key_frames],
+        self.log(start_rigid_actors(state.model, self.scene, self.prepared, np.asarray(self.train_indices),
                                     state.optimizers, c.rigid_actors_lr, c.rigid_actors_min_motion,
                                     c.rigid_actors_extrapolate, c.rigid_actors_radar_path, c.rigid_actors_attach))
 
