@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -61,7 +62,8 @@ def build_scene(seed: int, traffic: str, preset_name: str, work: Path, prepare_s
     scene = work / "scenes" / (f"{preset_name}-{traffic}-s{seed}" + ("" if fps is None else f"-{fps:g}hz"))
     synthesize_once(synth_config(preset_name, seed, traffic, fps), scene, preset_name)
     if not (scene / "prepared" / "config.json").is_file():
-        run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
+        run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False,
+                    wait=math.inf)
     if not (scene / BACKGROUND_DIR).is_dir():
         write_backgrounds(scene, read_scene(scene).test_indices)  # only the test frames are scored
     return scene

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 
@@ -97,7 +98,8 @@ def prepare_scene(seed: int, preset_name: str, work: Path, oracle: bool, traffic
     synthesize_once(synth_config(preset_name, seed, traffic, fps), scene_dir)
     prepared = scene_dir / ("prepared-oracle" if oracle else "prepared")
     stages = ("radar",) if oracle else ("radar", "depth", "masks", "object_depth")
-    run_prepare(scene_dir, prepared, prepare_config(preset_name, prepare_set), only=stages, progress=False)
+    run_prepare(scene_dir, prepared, prepare_config(preset_name, prepare_set), only=stages, progress=False,
+                wait=math.inf)
     source = "oracle" if oracle else "prepared"
     info = {"radar_source": "prepared", "depth_source": source, "mask_source": source}
     return scene_dir, prepared, info

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -60,7 +61,8 @@ def prepare_scene(seed: int, preset_name: str, work: Path, traffic: str = "calm"
     scene = work / f"seed{seed}" / "scene"
     started = time.perf_counter()
     synthesize_once(synth_config(preset_name, seed, traffic, fps), scene, preset_name)
-    run_prepare(scene, work / f"seed{seed}" / "prepared", prepare_config(preset_name, prepare_set), progress=False)
+    run_prepare(scene, work / f"seed{seed}" / "prepared", prepare_config(preset_name, prepare_set), progress=False,
+                wait=math.inf)
     return scene, work / f"seed{seed}" / "prepared", time.perf_counter() - started
 
 
@@ -149,7 +151,7 @@ def aimotive(work: Path, preset_name: str, threads: int | None = None, prepare_s
     started = time.perf_counter()
     if not (scene / "scene.json").is_file():
         convert_aimotive(FIXTURE, scene, scale=0.25, overwrite=True, progress=False)  # 320x141: 320x176 less the hood
-    run_prepare(scene, None, prepare_config(preset_name, prepare_set), progress=False)
+    run_prepare(scene, None, prepare_config(preset_name, prepare_set), progress=False, wait=math.inf)
     prepare_seconds = time.perf_counter() - started
     result = train_and_eval(scene, scene / "prepared", work / "aimotive" / "ours", preset_name, "ours", threads)
     return {"prepare_seconds": prepare_seconds, **result}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -47,7 +48,7 @@ def prepare_scene(seed: int, traffic: str, fps: float | None, preset_name: str, 
 
     scene = work / "scenes" / scene_label(traffic, seed, fps, supersample, size)
     synthesize_once(synth_config(preset_name, seed, traffic, fps, supersample, size), scene, preset_name)
-    run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False)
+    run_prepare(scene, scene / "prepared", prepare_config(preset_name, prepare_set), progress=False, wait=math.inf)
     return scene, dynamic_motion_statistics(read_scene(scene))
 
 

@@ -4,12 +4,15 @@ process's lock is taken over; prepare, train and eval take it."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -73,6 +76,33 @@ def test_a_held_folder_is_refused_then_free_after_release(tmp_path, holder):
     with folder_lock(run):
         assert lock_owner(run)["pid"] == os.getpid() and lock_owner(run)["host"] == HOST
     assert not run.exists()  # the lock lives beside the folder, it creates nothing in it
+
+
+def test_a_waiting_caller_gets_the_folder_when_its_holder_ends(tmp_path, holder):
+    run = tmp_path / "run"
+    h = holder(run)
+    said = []
+    releaser = threading.Timer(0.5, h.release)
+    releaser.start()
+    started = time.monotonic()
+    with folder_lock(run, wait=math.inf, log=said.append):
+        assert lock_owner(run)["pid"] == os.getpid()
+    releaser.join()
+    assert time.monotonic() - started >= 0.5
+    assert len(said) == 1 and re.fullmatch("waiting for " + IN_USE.format(folder=re.escape(str(run)),
+                                                                          pid=h.process.pid), said[0]), said
+
+
+def test_a_wait_that_runs_out_is_refused_saying_how_long(tmp_path, holder):
+    run = tmp_path / "run"
+    h = holder(run)
+    started = time.monotonic()
+    with pytest.raises(FolderInUseError, match=IN_USE.format(folder=re.escape(str(run)), pid=h.process.pid)
+                       + re.escape(" (waited 0.3 s)")):
+        with folder_lock(run, wait=0.3, log=lambda line: None):
+            pass
+    assert time.monotonic() - started >= 0.3
+    assert lock_owner(run)["pid"] == h.process.pid  # the holder keeps it
 
 
 def test_a_dead_processs_lock_is_taken_over(tmp_path, holder):

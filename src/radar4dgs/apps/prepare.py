@@ -192,8 +192,11 @@ def stage_is_current(stage_dir: Path, stage_config: Any, fingerprint: str) -> bo
 
 
 def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareConfig | None = None,
-                force: bool = False, only: tuple[str, ...] = (), progress: bool = True) -> dict[str, str]:
-    """Run the stages (all, or those named in ``only``) and return ``{stage: "ran" | "skipped"}``."""
+                force: bool = False, only: tuple[str, ...] = (), progress: bool = True,
+                wait: float = 0.0) -> dict[str, str]:
+    """Run the stages (all, or those named in ``only``) and return ``{stage: "ran" | "skipped"}``.
+    ``wait``: seconds to wait for the prepared folder when another process holds it (0: fail at
+    once, ``math.inf``: until it is free; :func:`radar4dgs.io.locks.folder_lock`)."""
     config = config or PrepareConfig()
     scene = read_scene(scene_path)
     prepared = Path(prepared) if prepared is not None else Path(scene_path) / "prepared"
@@ -203,7 +206,7 @@ def run_prepare(scene_path: Path, prepared: Path | None = None, config: PrepareC
         raise ValueError(f"unknown stage(s) {unknown}; stages are {known}")
     # One process per prepared folder (another one's is refused in one line); what dead runs left
     # half-written there is removed first.
-    with folder_lock(prepared):
+    with folder_lock(prepared, wait=wait):
         remove_dead_temporaries(prepared, recursive=True)
         return _run_stages(scene, prepared, config, force, only, progress)
 

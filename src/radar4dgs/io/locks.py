@@ -7,18 +7,21 @@ replaces or deletes the whole folder, ``train --force``, keeps its lock) and wri
 dies, so a lock left by a dead run (``kill -9``) is simply taken over; the stale owner file is
 overwritten. The lock file itself stays (deleting a lock file is what breaks mutual exclusion).
 
-The lock is re-entrant within one process (``train`` runs ``eval`` on the run it holds).
+The lock is re-entrant within one process (``train`` runs ``eval`` on the run it holds). A caller
+that would rather queue than fail (a benchmark preparing a scene another benchmark is preparing)
+passes ``wait`` seconds.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import sys
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 from filelock import FileLock, Timeout
 
@@ -57,6 +60,10 @@ def in_use_message(folder: str | os.PathLike) -> str:
     return f"{folder} is in use by pid {owner['pid']}{where} since {owner.get('since', '?')}{command}"
 
 
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
 def _owner_alive(owner: dict | None) -> bool:
     """Whether ``owner`` names a live process (one on another host is taken as alive)."""
     if owner is None or not isinstance(owner.get("pid"), int):
@@ -81,10 +88,13 @@ def _wait_for_live_owner(folder: str | os.PathLike, seconds: float = 1.0) -> Non
 
 
 @contextlib.contextmanager
-def folder_lock(folder: str | os.PathLike, command: str | None = None) -> Iterator[Path]:
-    """Hold ``folder``'s lock for the ``with`` block, or raise :class:`FolderInUseError` at once
-    when another live process holds it. ``command`` (default: this process's command line) goes
-    into the message others get. Yields the lock file."""
+def folder_lock(folder: str | os.PathLike, command: str | None = None, wait: float = 0.0,
+                log: Callable[[str], None] | None = None) -> Iterator[Path]:
+    """Hold ``folder``'s lock for the ``with`` block, or raise :class:`FolderInUseError` when
+    another live process holds it: at once (``wait`` 0), or after waiting ``wait`` seconds for it
+    (``math.inf``: until it is free), saying once through ``log`` (default: stderr) whom it waits
+    for. ``command`` (default: this process's command line) goes into the message others get.
+    Yields the lock file."""
     lock_file, owner_file = lock_paths(folder)
     held = _HELD.get(lock_file)
     if held is not None:
@@ -100,7 +110,15 @@ def folder_lock(folder: str | os.PathLike, command: str | None = None) -> Iterat
         lock.acquire()
     except Timeout:
         _wait_for_live_owner(folder)
-        raise FolderInUseError(in_use_message(folder)) from None
+        if wait <= 0:
+            raise FolderInUseError(in_use_message(folder)) from None
+        (log or _stderr)(f"waiting for {in_use_message(folder)}")
+        try:
+            # filelock polls (every 50 ms by default); -1 is its "for ever".
+            lock.acquire(timeout=-1 if math.isinf(wait) else wait)
+        except Timeout:
+            _wait_for_live_owner(folder)
+            raise FolderInUseError(f"{in_use_message(folder)} (waited {wait:g} s)") from None
     try:
         if command is None:
             command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else ""
