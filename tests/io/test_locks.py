@@ -89,7 +89,7 @@ def test_a_waiting_caller_gets_the_folder_when_its_holder_ends(tmp_path, holder)
         assert lock_owner(run)["pid"] == os.getpid()
     releaser.join()
     assert time.monotonic() - started >= 0.5
-    assert len(said) == 1 and re.fullmatch("waiting for " + IN_USE.format(folder=re.escape(str(run)),
+    assert len(said) == 1 and re.fullmatch("waiting: " + IN_USE.format(folder=re.escape(str(run)),
                                                                           pid=h.process.pid), said[0]), said
 
 

@@ -112,7 +112,7 @@ def folder_lock(folder: str | os.PathLike, command: str | None = None, wait: flo
         _wait_for_live_owner(folder)
         if wait <= 0:
             raise FolderInUseError(in_use_message(folder)) from None
-        (log or _stderr)(f"waiting for {in_use_message(folder)}")
+        (log or _stderr)(f"waiting: {in_use_message(folder)}")
         try:
             # filelock polls (every 50 ms by default); -1 is its "for ever".
             lock.acquire(timeout=-1 if math.isinf(wait) else wait)
