@@ -50,25 +50,3 @@ def test_the_window_is_saved_with_the_model_and_absent_from_older_models():
     older = SceneModel.from_payload(saved, dtype=torch.float64)
     assert older.key_times is None
     np.testing.assert_array_equal(dynamic_opacities(older, 0.3), dynamic_opacities(model(0.0), 0.3))
-
-
-def test_a_neighbours_life_spans_draw_its_copies_where_they_are_at_the_frames_own_time():
-    points = np.array([[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [2.0, 0.0, 5.0]])
-    velocity = torch.tensor([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, -1.0]], dtype=torch.float64)
-    moving = with_lifespans(GaussianSet.from_points(points, np.full((3, 3), 0.5), dtype=torch.float64),
-                            np.array([0.2, 0.4, 0.1]), LIFESPAN, velocity=velocity)
-    static = GaussianSet.from_points(points[:1], np.full((1, 3), 0.5), dtype=torch.float64)
-    scene_model = SceneModel(static, SkyEnvironment(4, 8, dtype=torch.float64), None, moving, key_times=KEY_TIMES,
-                             window_fraction=0.25)
-    own, neighbour = scene_model.set_at("dynamic", 0.2), scene_model.set_at("dynamic", 0.1)
-    crossed = scene_model.set_at("dynamic", 0.2, visibility_time=0.1)
-    np.testing.assert_array_equal(crossed["means"].detach(), own["means"].detach())
-    np.testing.assert_array_equal(crossed["opacities"].detach(), neighbour["opacities"].detach())
-    assert not torch.equal(own["means"], neighbour["means"]) and not torch.equal(own["opacities"],
-                                                                                neighbour["opacities"])
-    # The held-out window follows the visibility time: drawn at the held-out 0.3 with the life spans of the
-    # training frame 0.4, the copies get no window (at 0.3 itself they would: test above).
-    base = moving.activated()["opacities"].detach().numpy()
-    expected = [math.exp(-0.5 * (abs(0.4 - tau) / LIFESPAN) ** 2) for tau in (0.2, 0.4, 0.1)]
-    np.testing.assert_allclose(scene_model.set_at("dynamic", 0.3, visibility_time=0.4)["opacities"].detach(),
-                               base * expected, rtol=1e-12)

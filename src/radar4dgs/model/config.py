@@ -351,12 +351,14 @@ class TrainConfig:
     # key interval to the next, m and rad): per-frame poses fitted to their own images alone drift off the path.
     rigid_actors_smoothness: float = 0.0
     # Weight of the rigid actors' heading term (ActorMotion.heading_mismatch: each actor turns as its path turns,
-    # rad²). Off: at 100 it halved a cut-in car's yaw error and moved PSNR* +0.04 dB over ten strict tuning runs.
+    # rad²). Without it nothing ties an actor's yaw to where it goes: straight cars were fitted turning by 50-110°.
+    # Off: at 100 it halved a cut-in car's yaw error and moved PSNR* +0.04 dB over ten strict tuning grid runs.
     rigid_actors_heading: float = 0.0
-    # Only actors whose centroid moves at least this far in the image from one frame to the next (90th percentile
-    # over their consecutive visible frames; a fraction of the image width) move rigidly; the field keeps the others
-    # (calm seeds 1-3, actors at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09 dB of novel-view PSNR* with
-    # every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
+    # Only actors whose centroid moves at least this far in the image from one frame to the next (90th
+    # percentile over their consecutive visible frames; a fraction of the image width) move rigidly; the field
+    # keeps the others. A lead car followed at the ego's speed hardly moves in the image, and the field holds it
+    # better than per-frame poses (calm seeds 1-3, actors at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09
+    # dB of novel-view PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
     # Before the first and after the last training frame an actor's Gaussians were born in (those holding at
     # least a tenth of its largest frame's opacity mass), its initial path goes on at the velocity of its first
@@ -367,18 +369,15 @@ class TrainConfig:
     # 101-102, +0.19 / +0.86 at full small on 404 / 409 (benchmarks/results/rigid-actors-extrapolate.json).
     # No effect while rigid_actors_at is 0.
     rigid_actors_extrapolate: bool = True
-    # At the switch, each actor's path moves along the line of sight to fit the velocities of its radar objects
-    # (train.rigid_actors.radar_corrected_shift): the images place a far car across the line of sight, not along it.
+    # At the switch, each actor's path moves along the line of sight to fit the velocities of the radar objects it
+    # holds (train.rigid_actors.radar_corrected_shift): the images place a far car across the line of sight, not
+    # along it, and far crossing cars' actors were metres off there (their paths turning 50 degrees on straight roads).
     # Off: +0.02 dB of PSNR* over ten strict tuning grid runs (benchmarks/results/rigid-actor-priors.json).
     rigid_actors_radar_path: bool = False
     # At the switch, dynamic Gaussians the discovery left to the field join an actor whose fitted body covers them in
     # their own frame within this fraction of the image width (train.rigid_actors.attach_free); 0 = off. 0.0125 in
     # small: PSNR* +0.11 dB over ten strict tuning grid runs, +0.19 on calm 1-3 / realistic 101-102.
     rigid_actors_attach: float = 0.0
-    # Ours, once actors move rigidly: this share of the iterations renders the dynamic Gaussians with the life spans
-    # of the previous or the next training frame (drawn at random), moved to the frame's own time, as a held-out
-    # frame draws its neighbours' copies (determinism.neighbour_row); copies that disagree across frames smear there.
-    neighbour_copies: float = 0.0
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).
@@ -474,16 +473,17 @@ class TrainConfig:
                              f"{self.dynamic_in_front} and {self.render_in_front}")
         if self.frame_cache < 0:
             raise ValueError(f"frame_cache must be >= 0 (0 = every frame), got {self.frame_cache}")
-        for name in ("rigid_actors_smoothness", "rigid_actors_heading", "rigid_actors_min_motion",
-                     "dynamic_lifespan_reference_px"):
+        for name in ("rigid_actors_smoothness", "rigid_actors_heading"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.rigid_actors_min_motion < 0:
+            raise ValueError(f"rigid_actors_min_motion must be >= 0, got {self.rigid_actors_min_motion}")
         if not 0.0 <= self.rigid_actors_at < 1.0:
             raise ValueError(f"rigid_actors_at must lie in [0, 1) (0 = never), got {self.rigid_actors_at}")
+        if self.dynamic_lifespan_reference_px < 0:
+            raise ValueError(f"dynamic_lifespan_reference_px must be >= 0, got {self.dynamic_lifespan_reference_px}")
         if not 0.0 <= o.dropout < 1.0:
             raise ValueError(f"optim.dropout must lie in [0, 1), got {o.dropout}")
-        if not 0.0 <= self.neighbour_copies <= 1.0:
-            raise ValueError(f"neighbour_copies must lie in [0, 1], got {self.neighbour_copies}")
         for name in ("resolution_scale", "coarse_scale"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must lie in (0, 1], got {getattr(self, name)}")

@@ -71,29 +71,25 @@ class SceneModel(nn.Module):
     def num_gaussians(self) -> int:
         return len(self.static) + (len(self.dynamic) if self.dynamic is not None else 0)
 
-    def set_at(self, name: str, time: float, cull: bool = False, visibility_time: float | None = None
-               ) -> dict[str, Tensor]:
+    def set_at(self, name: str, time: float, cull: bool = False) -> dict[str, Tensor]:
         """Activated Gaussians of set ``name`` ("static" or "dynamic") at normalised ``time``:
         ``means`` (N, 3) moved by whatever moves this set (the VGPT field for the dynamic set,
         its B-spline or PVG parameters, the offset MLP; a rigid actor's Gaussians by their actor's
         motion), ``opacities`` (N,) times the temporal visibility where the set has a life span, and
         ``quats`` (turned with a rigid actor), ``scales``, ``colors``. With ``cull`` (renders), dynamic
-        Gaussians too faint to be drawn at ``time`` keep their stored means and get opacity 0.
-        ``visibility_time`` (default ``time``): the time whose life spans weight the opacities, the
-        Gaussians still moved to ``time`` (a neighbouring frame's copies drawn where they are at ``time``)."""
+        Gaussians too faint to be drawn at ``time`` keep their stored means and get opacity 0."""
         gaussians = getattr(self, name)
         g = gaussians.activated()
         p = gaussians.params
         time = float(time)
-        seen = time if visibility_time is None else float(visibility_time)
         stored = g["means"]
         # Rigid actors' Gaussians: their means are positions at their actor's reference time.
         rigid = p["actor"].detach() >= 0 if self.actor_motion is not None and gaussians.has("actor") else None
         if gaussians.has("log_lifespan"):
             flat = 0.0
             if name == "dynamic" and self.key_times and self.window_fraction > 0:
-                flat = self.window_fraction * min(abs(seen - key) for key in self.key_times)
-            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], seen, flat)
+                flat = self.window_fraction * min(abs(time - key) for key in self.key_times)
+            g["opacities"] = g["opacities"] * temporal_visibility(p["tau"], p["log_lifespan"], time, flat)
         if name == "dynamic" and self.field is not None:
             # A render moves only the Gaussians the rasterizer would draw (about half the dynamic set
             # at a training frame); the others get opacity 0 and are culled as before, so renders and
@@ -121,11 +117,10 @@ class SceneModel(nn.Module):
         return g
 
     def gaussians_at(self, time: float, include_static: bool = True, include_dynamic: bool = True,
-                     detach_static: bool = False, cull: bool = False,
-                     visibility_time: float | None = None) -> dict[str, Tensor]:
+                     detach_static: bool = False, cull: bool = False) -> dict[str, Tensor]:
         """Activated Gaussians of the scene at normalised ``time`` (:meth:`set_at` of each set):
         ``means`` (N, 3), ``quats`` (N, 4), ``scales`` (N, 3), ``opacities`` (N,), ``colors``
-        (N, 3), ``dynamic`` (N,) bool; static ones first. ``cull``, ``visibility_time``: as :meth:`set_at`."""
+        (N, 3), ``dynamic`` (N,) bool; static ones first. ``cull``: as :meth:`set_at`."""
         parts = []
         if include_static:
             static = self.set_at("static", time)
@@ -134,7 +129,7 @@ class SceneModel(nn.Module):
             static["dynamic"] = torch.zeros(len(self.static), dtype=torch.bool, device=static["means"].device)
             parts.append(static)
         if include_dynamic and self.dynamic is not None and len(self.dynamic) > 0:
-            dynamic = self.set_at("dynamic", time, cull, visibility_time)
+            dynamic = self.set_at("dynamic", time, cull)
             dynamic["dynamic"] = torch.ones(len(self.dynamic), dtype=torch.bool, device=dynamic["means"].device)
             parts.append(dynamic)
         if not parts:
@@ -143,15 +138,13 @@ class SceneModel(nn.Module):
 
     def render(self, view: View, raster: RasterConfig | None = None, directions: Tensor | None = None,
                keep: Tensor | None = None, dropout_scale: float = 1.0, include_static: bool = True,
-               include_dynamic: bool = True, detach_static: bool = False,
-               visibility_time: float | None = None) -> dict[str, Any]:
+               include_dynamic: bool = True, detach_static: bool = False) -> dict[str, Any]:
         """Render ``view``.
 
         Args:
             directions: (H, W, 3) world ray directions of the pixels (computed when None).
             keep: (N,) bool Gaussian dropout mask over :meth:`gaussians_at`'s order (None = all),
                 the kept opacities multiplied by ``dropout_scale`` and clamped to 1.
-            visibility_time: the time whose life spans weight the dynamic opacities (:meth:`set_at`).
 
         Returns ``rgb`` (H, W, 3) composited with the sky, ``alpha`` (H, W), ``depth`` (H, W)
         expected depth (0 where alpha is 0), ``dynamic`` (H, W) accumulated weight of the dynamic
@@ -160,8 +153,7 @@ class SceneModel(nn.Module):
         (``detach_static``).
         """
         raster = raster or RasterConfig()
-        g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static, cull=True,
-                              visibility_time=visibility_time)
+        g = self.gaussians_at(view.time, include_static, include_dynamic, detach_static, cull=True)
         device, dtype = g["means"].device, g["means"].dtype
         opacities = g["opacities"]
         if keep is not None:

@@ -53,7 +53,7 @@ from radar4dgs.model.sky import SkyEnvironment
 from radar4dgs.radar.sync import prepared_synced_scene
 from radar4dgs.train.data import FrameTargetCache, FrameTargets, dynamic_masks, load_frame_targets, load_motion_targets
 from radar4dgs.train.densify import GradientStats, densify_and_prune, reset_opacities
-from radar4dgs.train.determinism import frame_order, neighbour_row, step_generator
+from radar4dgs.train.determinism import frame_order, step_generator
 from radar4dgs.train.fit_motion import torch_threads
 from radar4dgs.train.model_init import (
     dynamic_gaussians,
@@ -405,11 +405,8 @@ class Trainer:
             scale = 1.0 / (1.0 - config.optim.dropout)
         view, directions = self._camera(state, row, target)
         ignore_dynamic, detach_static = image_phase(config, stage, step)
-        rigid = model.actor_motion is not None
-        other = neighbour_row(config.seed, step, row, n, config.neighbour_copies) if rigid else None
-        render = model.render(view, config.raster, directions, keep, scale, include_dynamic=with_dynamic,
-                              detach_static=detach_static, visibility_time=None if other is None else
-                              float(self.times[self.train_indices[other]]))
+        render = model.render(view, config.raster, directions, keep, scale,
+                              include_dynamic=with_dynamic, detach_static=detach_static)
         if state.appearance is not None:
             render = {**render, "rgb": state.appearance(render["rgb"], row)}
         means2d = render["meta"]["means2d"]
