@@ -65,6 +65,34 @@ def test_a_rigid_track_is_recovered_from_copies_that_live_around_their_own_key(s
         np.testing.assert_allclose(moved, np.concatenate([truth[:, k]] * keys), atol=1e-7)
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 1000), climb=st.floats(0.05, 1.0))
+def test_a_flat_path_keeps_its_height_and_every_copy_where_the_field_put_it_at_its_own_key(seed, climb):
+    """A car driving on level ground whose copies the field lifts by ``climb`` metres a key: held flat, the path's
+    step carries a copy to the next key at the car's true height, and each copy stays put at its own key."""
+    rng = np.random.default_rng(seed)
+    keys, body = 6, rng.uniform([-2, -1, 0], [2, 1, 1.5], (30, 3)) + [20, 3, 0]
+    truth = np.stack([body + [4.0 * k, 0.0, 0.0] for k in range(keys)], axis=1)
+    field = truth + np.array([0.0, 0.0, climb])[None, None] * np.arange(keys)[None, :, None]
+    opacities = np.zeros((30 * keys, keys))
+    for j in range(keys):
+        opacities[30 * j:30 * (j + 1), j] = 1.0
+        opacities[30 * j:30 * (j + 1), [k for k in (j - 1, j + 1) if 0 <= k < keys]] = 0.3
+    positions = np.concatenate([field] * keys)
+    pivot, yaw, shift, canonical = fit_rigid_track(positions, opacities, flat=True)
+    assert np.all(shift[:, 2] == 0.0)
+    for j in range(keys):
+        rows = slice(30 * j, 30 * (j + 1))
+        at_own = turn(canonical[rows] - pivot, yaw[j]) + pivot + shift[j]
+        np.testing.assert_allclose(at_own, field[:, j], atol=1e-7)
+        if j + 1 < keys:
+            carried = turn(canonical[rows] - pivot, yaw[j + 1]) + pivot + shift[j + 1]
+            np.testing.assert_allclose(carried - at_own, truth[:, j + 1] - truth[:, j], atol=1e-7)
+    # Not flat, the path climbs with the field.
+    _, _, climbing, _ = fit_rigid_track(positions, opacities)
+    np.testing.assert_allclose(np.diff(climbing[:, 2]), climb, atol=1e-7)
+
+
 def test_the_born_span_ignores_a_few_stray_copies():
     # Copies peaking at keys 0..6: masses 0.5 (stray), 0, 10, 20, 30, 20, 1 (below a tenth of 30).
     peaks = [0.5, 0.0, 10.0, 20.0, 30.0, 20.0, 1.0]

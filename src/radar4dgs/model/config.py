@@ -378,6 +378,8 @@ class TrainConfig:
     # their own frame within this fraction of the image width (train.rigid_actors.attach_free); 0 = off. 0.0125 in
     # small: PSNR* +0.11 dB over ten strict tuning grid runs, +0.19 on calm 1-3 / realistic 101-102.
     rigid_actors_attach: float = 0.0
+    # At the switch each actor's path keeps its reference height (train.rigid_actors.fit_rigid_track, flat).
+    rigid_actors_flat: bool = False
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
     # 0.5-0.6 dB of novel-view PSNR on realistic traffic (docs/pipeline/training.md).

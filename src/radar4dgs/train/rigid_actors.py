@@ -92,8 +92,8 @@ def extrapolate_ends(yaw: np.ndarray, shift: np.ndarray, times: np.ndarray, firs
     return yaw, shift
 
 
-def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndarray | None = None,
+                    flat: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The rigid motion of one actor from its Gaussians' (n, K, 3) field ``positions`` and (n, K)
     ``opacities`` (life span included) at K key times: the pivot (3,) (the weighted centroid at the
     key where the actor's opacity mass is largest, the reference), per key the yaw (K,) and shift
@@ -105,7 +105,8 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndar
     key to key, each step fitted on the Gaussians that render at both (opacity products as
     weights), and each Gaussian's reference position is its position at its own key (where its
     opacity peaks) brought back by that key's motion. With the keys' (K,) normalised ``times``, the keys
-    outside the actor's :func:`born_span` follow :func:`extrapolate_ends` instead of the field."""
+    outside the actor's :func:`born_span` follow :func:`extrapolate_ends` instead of the field. ``flat``: the path
+    keeps the reference key's height (shift z 0 at every key); each copy stays where the field put it at its own key."""
     keys = positions.shape[1]
     reference = int(np.argmax(opacities.sum(axis=0)))
     pivot = np.average(positions[:, reference], axis=0, weights=opacities[:, reference] + 1e-9)
@@ -118,6 +119,10 @@ def fit_rigid_track(positions: np.ndarray, opacities: np.ndarray, times: np.ndar
         step_yaw, step_shift = rigid_step(positions[:, known], positions[:, k], weights, pivot)
         yaw[k] = yaw[known] + step_yaw
         shift[k] = turn_about_z(shift[known], step_yaw) + step_shift
+    if flat:
+        # A road user's height hardly changes over a clip; the field's vertical drift (metres over a crossing
+        # car's path on the strict tuning seeds) would carry each copy up or down away from its own frame.
+        shift[:, 2] = 0.0
     if times is not None:
         yaw, shift = extrapolate_ends(yaw, shift, np.asarray(times, dtype=np.float64), *born_span(opacities))
     own = np.argmax(opacities, axis=1)
@@ -250,7 +255,7 @@ def body_attachments(points: np.ndarray, keys: np.ndarray, bodies: list[np.ndarr
 @torch.no_grad()
 def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: np.ndarray,
                        extrapolate: bool = False, radar_paths: RadarPaths | None = None,
-                       attach: tuple[np.ndarray, np.ndarray, float] | None = None
+                       attach: tuple[np.ndarray, np.ndarray, float] | None = None, flat: bool = False
                        ) -> tuple[ActorMotion, Tensor, Tensor]:
     """The initial :class:`ActorMotion` of ``groups`` (one (k,) index array into the dynamic set per
     actor) at (K,) normalised ``key_times``, the (N,) actor index of every dynamic Gaussian (-1 for
@@ -259,7 +264,7 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     goes on at constant velocity (:func:`fit_rigid_track`); ``radar_paths``: each actor's path is then
     moved along the line of sight to its radar velocities (:func:`radar_corrected_shift`); ``attach`` = (the keys'
     (K, 4, 4) world-to-camera, intrinsics (3, 3), radius px): the Gaussians of no group join the actor whose fitted
-    body covers them at their own key (:func:`body_attachments`)."""
+    body covers them at their own key (:func:`body_attachments`); ``flat``: as :func:`fit_rigid_track`."""
     dynamic = model.dynamic
     means = dynamic.params["means"].detach()
     positions, opacities = dynamic_trajectories(model, key_times)
@@ -268,7 +273,7 @@ def rigid_actor_motion(model: SceneModel, groups: list[np.ndarray], key_times: n
     pivots, yaws, shifts = [], [], []
     for a, members in enumerate(groups):
         pivot, yaw, shift, canonical = fit_rigid_track(positions[members], opacities[members],
-                                                       np.asarray(key_times) if extrapolate else None)
+                                                       np.asarray(key_times) if extrapolate else None, flat)
         if radar_paths is not None:
             velocity, std = radar_paths.velocities[a]
             shift = radar_corrected_shift(pivot, shift, radar_paths.centres, velocity, std, radar_paths.seconds)
@@ -369,14 +374,16 @@ def actor_image_motion(centroids: np.ndarray, frames: np.ndarray, world_to_camer
 
 def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_frames: np.ndarray,
                        optimizers: dict[str, torch.optim.Optimizer], lr: float, min_motion: float = 0.0,
-                       extrapolate: bool = False, radar_path: bool = False, attach: float = 0.0) -> str:
+                       extrapolate: bool = False, radar_path: bool = False, attach: float = 0.0,
+                       flat: bool = False) -> str:
     """Discover ``model``'s actors in ``scene`` (with the radar objects of ``prepared`` when it has them) and, for those
     moving at least ``min_motion`` x the image width a frame in the image (:func:`actor_image_motion`), move each
     rigidly from now on: the motion installed in ``model`` at the normalised times of the (K,) frames ``key_frames``
     and its Adam (rate ``lr``) added to ``optimizers`` as "actors"; ``extrapolate`` as :func:`rigid_actor_motion`;
     ``radar_path`` (with radar objects): each actor's path is fitted to the velocities of the radar objects it holds
     (:func:`radar_corrected_shift`); ``attach`` > 0: the Gaussians left to the field join an actor covering them in
-    their own frame within that fraction of the image width (:func:`attach_free`). Returns the line to log."""
+    their own frame within that fraction of the image width (:func:`attach_free`); ``flat``: as
+    :func:`fit_rigid_track`. Returns the line to log."""
     # Without (current) radar objects the motion graph alone groups the Gaussians.
     radar_objects, why = optional_radar_objects(prepared, len(scene))
     without = "" if radar_objects is not None else f" (without radar objects: {why})"
@@ -403,7 +410,7 @@ def start_rigid_actors(model: SceneModel, scene, prepared: Path, key_frames: np.
         paths = RadarPaths([radar_key_velocities(a.radar, radar_objects, frames) for a in actors],
                            camera_centres(cameras), stamps)
     groups = [a.gaussians for a in actors]
-    motion, actor, start = rigid_actor_motion(model, groups, key_times, extrapolate, paths, bodies)
+    motion, actor, start = rigid_actor_motion(model, groups, key_times, extrapolate, paths, bodies, flat)
     rigid_members(model, motion, actor, start, optimizers["dynamic"])
     optimizers["actors"] = adam(motion.param_groups(lr))
     joined = int((actor >= 0).sum()) - sum(len(g) for g in groups)

@@ -259,7 +259,8 @@ class Trainer:
         c = self.config
         self.log(start_rigid_actors(state.model, self.scene, self.prepared, np.asarray(self.train_indices),
                                     state.optimizers, c.rigid_actors_lr, c.rigid_actors_min_motion,
-                                    c.rigid_actors_extrapolate, c.rigid_actors_radar_path, c.rigid_actors_attach))
+                                    c.rigid_actors_extrapolate, c.rigid_actors_radar_path, c.rigid_actors_attach,
+                                    c.rigid_actors_flat))
 
     # ---- checkpoints
     def checkpoint_payload(self, state: RunState) -> dict[str, Any]:
