@@ -351,8 +351,7 @@ class TrainConfig:
     # key interval to the next, m and rad): per-frame poses fitted to their own images alone drift off the path.
     rigid_actors_smoothness: float = 0.0
     # Weight of the rigid actors' heading term (ActorMotion.heading_mismatch: each actor turns as its path turns,
-    # rad²). Without it nothing ties an actor's yaw to where it goes: straight cars were fitted turning by 50-110°.
-    # Off: at 100 it halved a cut-in car's yaw error and moved PSNR* +0.04 dB over ten strict tuning grid runs.
+    # rad²). Off: at 100 it halved a cut-in car's yaw error and moved PSNR* +0.04 dB over ten strict tuning runs.
     rigid_actors_heading: float = 0.0
     # Only actors whose centroid moves at least this far in the image from one frame to the next (90th
     # percentile over their consecutive visible frames; a fraction of the image width) move rigidly; the field
@@ -360,14 +359,10 @@ class TrainConfig:
     # better than per-frame poses (calm seeds 1-3, actors at most 5 px a frame at 320 px: -0.22 / -0.66 / -0.09
     # dB of novel-view PSNR* with every actor rigid; at 0.025 none of them moves rigidly). 0 = every actor.
     rigid_actors_min_motion: float = 0.0
-    # Before the first and after the last training frame an actor's Gaussians were born in (those holding at
-    # least a tenth of its largest frame's opacity mass), its initial path goes on at the velocity of its first
-    # or last two such frames, instead of the field's motion there: the field moves a copy anywhere outside its
-    # life span, and a car entering or leaving the view at a held-out frame is drawn from a pose interpolated
-    # with one of those keys, which no image constrains. On: novel-view PSNR* +0.21 dB over ten grid runs of the
-    # strict hard tuning seeds at 640 px (8 of 10 gain, none loses more than 0.08), +0.18 on calm 1-3 / realistic
-    # 101-102, +0.19 / +0.86 at full small on 404 / 409 (benchmarks/results/rigid-actors-extrapolate.json).
-    # No effect while rigid_actors_at is 0.
+    # Before the first and after the last training frame an actor's Gaussians were born in, its initial path goes on
+    # at the velocity of its first or last two such frames, not the field's motion (which moves a copy anywhere
+    # outside its life span). On: novel-view PSNR* +0.21 dB over ten strict tuning grid runs, +0.18 on calm 1-3 /
+    # realistic 101-102, +0.19 / +0.86 at full small on 404 / 409 (benchmarks/results/rigid-actors-extrapolate.json).
     rigid_actors_extrapolate: bool = True
     # At the switch, each actor's path moves along the line of sight to fit the velocities of the radar objects it
     # holds (train.rigid_actors.radar_corrected_shift): the images place a far car across the line of sight, not
@@ -378,7 +373,9 @@ class TrainConfig:
     # their own frame within this fraction of the image width (train.rigid_actors.attach_free); 0 = off. 0.0125 in
     # small: PSNR* +0.11 dB over ten strict tuning grid runs, +0.19 on calm 1-3 / realistic 101-102.
     rigid_actors_attach: float = 0.0
-    # At the switch each actor's path keeps its reference height (train.rigid_actors.fit_rigid_track, flat).
+    # At the switch each actor's path keeps its reference frame's height (train.rigid_actors.fit_rigid_track, flat):
+    # the field's paths drift up to metres in height, and a copy carried to the next frame drifts with them. True in
+    # small: novel-view PSNR* +0.52 dB over ten strict tuning grid runs (benchmarks/results/rigid-actors-flat.json).
     rigid_actors_flat: bool = False
     # Ours, stage 3: static Gaussians learn only outside the dynamic masks (alternate iterations ignore those
     # pixels / freeze the static set), so they cannot bake in a car the dynamic ones under-explain. Off: it cost
@@ -448,6 +445,7 @@ class TrainConfig:
                   # hard tuning seeds at 640 px (every run gains), +0.28 on calm 1-3 and realistic 101-102 at 320
                   # px, +0.94 / +0.70 at this preset on 404 / 409 (benchmarks/results/rigid-actors-640px-strict.json).
                   "rigid_actors_at": 0.3, "rigid_actors_smoothness": 1.0, "rigid_actors_attach": 0.0125,
+                  "rigid_actors_flat": True,
                   "densify": {"max_gaussians": 100_000}, "poses": dict(PoseRefineConfig.PRESETS["small"])},
         # 1920x1080 frames are ~60 MB each on the device: 16 of them, not 64.
         "paper": {"init": dict(GaussianInitConfig.PRESETS["paper"]), "field": dict(FieldConfig.PRESETS["paper"]),
